@@ -1,0 +1,99 @@
+"""The topic contract of cr_control (DESIGN.md, "Topic contract") in one place.
+
+Labelled arrays: controller reference/status and plant timing are published as
+``std_msgs/Float64MultiArray`` with a single layout dimension whose ``label`` is the
+comma-separated list of field names and whose ``size`` is the number of values.
+The first field is always ``stamp``: the time (s) of the joint state the values
+belong to. Any MCAP reader can recover named columns with :func:`fields_of`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+JOINT_STATES = "/joint_states"
+WRENCH = "/force_torque_sensor_broadcaster/wrench"
+JOINT_COMMANDS = "/joint_commands"
+CLOCK = "/clock"
+PLANT_TIMING = "/plant/timing"
+PARAMETER_EVENTS = "/parameter_events"
+RECORDER_READY = "/recorder/ready"
+
+REFERENCE_SUFFIX = "reference"
+STATUS_SUFFIX = "status"
+
+#: Depth of the RELIABLE/KEEP_LAST queues on the 1 kHz topics (depth 1 dropped
+#: messages across processes on these machines; 10 lost none).
+QOS_DEPTH = 10
+
+LABEL_SEPARATOR = ","
+
+
+def reference_topic(controller: str) -> str:
+    """Topic of a controller's desired motion and force."""
+    return f"/{controller}/{REFERENCE_SUFFIX}"
+
+
+def status_topic(controller: str) -> str:
+    """Topic of a controller's errors, estimates and compute time."""
+    return f"/{controller}/{STATUS_SUFFIX}"
+
+
+def layout_label(fields: Sequence[str]) -> str:
+    """The layout label that names the values of a labelled array."""
+    for name in fields:
+        if LABEL_SEPARATOR in name or not name:
+            raise ValueError(f"invalid field name {name!r}")
+    return LABEL_SEPARATOR.join(fields)
+
+
+def fields_of(layout_dim_label: str) -> list[str]:
+    """Field names of a labelled array from its layout label."""
+    return layout_dim_label.split(LABEL_SEPARATOR) if layout_dim_label else []
+
+
+def labelled_array(msg_cls, dim_cls, fields: Sequence[str]):
+    """A Float64MultiArray template whose layout names ``fields`` (fill ``data`` per cycle)."""
+    msg = msg_cls()
+    msg.layout.dim = [dim_cls(label=layout_label(fields), size=len(fields), stride=len(fields))]
+    return msg
+
+
+#: Fields of the plant's per-second timing message (PLANT_TIMING). ``window_*`` cover
+#: the last second; ``total_*`` the whole run so far. Ages are state-to-command round
+#: trips measured in the plant: from publishing a state to receiving the command
+#: computed from it. A cycle is "fresh" when the command applied at that tick was
+#: computed from the state published at the previous tick.
+PLANT_TIMING_FIELDS = [
+    "stamp",
+    "rate_hz",
+    "window_cycles",
+    "window_fresh_share",
+    "window_age_p50_ms",
+    "window_age_p99_ms",
+    "window_age_max_ms",
+    "total_cycles",
+    "total_fresh_share",
+    "total_missed_cycles",
+    "total_age_p50_ms",
+    "total_age_p99_ms",
+    "total_age_max_ms",
+    "step_time_us",
+]
+
+#: Fields every controller publishes on its reference topic (task space, SI units).
+REFERENCE_FIELDS = ["stamp", "r_d_x", "r_d_y", "v_d_x", "v_d_y", "a_d_x", "a_d_y", "f_d_x", "f_d_y"]
+
+#: Fields every task-space controller publishes first on its status topic; scheme
+#: specific fields (estimates, sliding variables, network norms) follow them.
+STATUS_FIELDS = [
+    "stamp",
+    "r_x", "r_y",
+    "v_x", "v_y",
+    "f_x", "f_y",
+    "e_x", "e_y",
+    "f_err_x", "f_err_y",
+    "tau_1", "tau_2",
+    "compute_time_us",
+    "held",
+]

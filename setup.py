@@ -1,0 +1,40 @@
+"""ament_python package cr_control: holds the Python packages cr_control and cr_sim."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "cr_control"
+
+# Per-scheme executables only choose the scheme of the one generic controller node.
+SCHEMES = [
+    "adaptive_impedance",
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.urdf")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="cr_control maintainers",
+    maintainer_email="maintainers@cr-control.invalid",
+    description="Force/position control of constrained robots (thesis controllers as ROS 2 nodes).",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "plant = cr_sim.plant_node:main",
+            "recorder = cr_control.recorder:main",
+            "cr_session = cr_control.session:main",
+            "cr_analyze = cr_control.analysis:main",
+            "cr_benchmark = cr_control.benchmark:main",
+        ]
+        + [f"{name} = cr_control.controller_node:main_{name}" for name in SCHEMES],
+    },
+)
