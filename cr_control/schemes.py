@@ -1,0 +1,33 @@
+"""Registry of control schemes: executable name -> controller class and its plant scenario."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from cr_control.adaptive_impedance import AdaptiveImpedanceController
+from cr_control.controller import Controller
+from cr_control.parameters import resolve
+
+#: scheme name -> (controller class, default plant scenario)
+SCHEMES: dict[str, tuple[type[Controller], str]] = {
+    "adaptive_impedance": (AdaptiveImpedanceController, "compliant_plane"),
+}
+
+
+def controller_class(scheme: str) -> type[Controller]:
+    """The controller class of ``scheme`` (ValueError naming the known ones if unknown)."""
+    if scheme not in SCHEMES:
+        raise ValueError(f"unknown scheme {scheme!r}; known: {sorted(SCHEMES)}")
+    return SCHEMES[scheme][0]
+
+
+def make_controller(scheme: str, overrides: dict[str, Any] | None = None) -> Controller:
+    """A controller of ``scheme`` with thesis defaults and ``overrides`` (ROS-style values)."""
+    cls = controller_class(scheme)
+    return cls(resolve(cls.parameters(), overrides))
+
+
+def default_scenario(scheme: str) -> str:
+    """The plant scenario the thesis runs ``scheme`` on."""
+    controller_class(scheme)
+    return SCHEMES[scheme][1]

@@ -1,0 +1,172 @@
+"""Planar 2-link arm of the thesis (ch. 2, 3, 5, 6) built from URDF through Pinocchio.
+
+The arm moves in the vertical x-y plane with gravity along -y. Notation of eq. (2.103)
+with DESIGN.md's resolution of the d/l swap: link length ``length`` (0.3 m), centre of
+mass ``com`` from the joint (0.15 m), mass ``mass`` (0.1 kg) and inertia ``inertia``
+(0.3 kg m^2) about the centre of mass. The closed forms printed in the thesis are in
+:func:`closed_form_dynamics` so tests can compare them with Pinocchio.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+URDF_PATH = Path(__file__).resolve().parent.parent / "config" / "two_link_arm.urdf"
+TOOL_FRAME = "tool0"
+GRAVITY = 9.8
+
+
+@dataclass
+class LinkParameters:
+    """Geometric and inertial parameters of the two links (thesis 3.5 defaults)."""
+
+    length: list[float] = field(default_factory=lambda: [0.3, 0.3])
+    com: list[float] = field(default_factory=lambda: [0.15, 0.15])
+    mass: list[float] = field(default_factory=lambda: [0.1, 0.1])
+    inertia: list[float] = field(default_factory=lambda: [0.3, 0.3])
+    gravity: float = GRAVITY
+
+    def validate(self) -> None:
+        """Raise ValueError unless every value is finite and physically meaningful."""
+        for name in ("length", "com", "mass", "inertia"):
+            values = getattr(self, name)
+            if len(values) != 2 or not all(math.isfinite(v) and v > 0 for v in values):
+                raise ValueError(f"{name} must be two positive finite numbers, got {values}")
+        if not math.isfinite(self.gravity) or self.gravity < 0:
+            raise ValueError(f"gravity must be finite and >= 0, got {self.gravity}")
+
+    def base_parameters(self) -> np.ndarray:
+        """p1..p5 of eq. (6.119) (= P(1:5) of ch. 2): the arm's base inertial parameters."""
+        m1, m2 = self.mass
+        I1, I2 = self.inertia
+        d1 = self.length[0]
+        l1, l2 = self.com
+        g = self.gravity
+        return np.array([
+            I1 + m1 * l1**2 + I2 + m2 * (d1**2 + l2**2),
+            m2 * d1 * l2,
+            I2 + m2 * l2**2,
+            (m1 * l1 + m2 * d1) * g,
+            m2 * l2 * g,
+        ])
+
+
+def build_model(params: LinkParameters, urdf: Path = URDF_PATH) -> pin.Model:
+    """Pinocchio model of the arm: URDF structure with ``params`` applied."""
+    params.validate()
+    model = pin.buildModelFromUrdf(str(urdf))
+    model.gravity.linear = np.array([0.0, -params.gravity, 0.0])
+    joint2 = model.getJointId("joint2")
+    model.jointPlacements[joint2].translation = np.array([params.length[0], 0.0, 0.0])
+    for i, joint in enumerate(("joint1", "joint2")):
+        jid = model.getJointId(joint)
+        izz = params.inertia[i]
+        model.inertias[jid] = pin.Inertia(
+            params.mass[i], np.array([params.com[i], 0.0, 0.0]), np.diag([izz, izz, izz])
+        )
+    tool = model.getFrameId(TOOL_FRAME)
+    model.frames[tool].placement.translation = np.array([params.length[1], 0.0, 0.0])
+    return model
+
+
+class TwoLinkArm:
+    """Joint-space dynamics M q'' + C q' + G = tau + J^T f (3.1) and tool kinematics."""
+
+    joint_names = ("joint1", "joint2")
+
+    def __init__(self, params: LinkParameters | None = None, urdf: Path = URDF_PATH):
+        self.params = params or LinkParameters()
+        self.model = build_model(self.params, urdf)
+        self.data = self.model.createData()
+        self.tool = self.model.getFrameId(TOOL_FRAME)
+        self._zero = np.zeros(2)
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """M(q), symmetric."""
+        M = pin.crba(self.model, self.data, q)
+        return np.triu(M) + np.triu(M, 1).T
+
+    def nonlinear_effects(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """C(q, q') q' + G(q)."""
+        return pin.rnea(self.model, self.data, q, v, self._zero)
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """G(q)."""
+        return pin.computeGeneralizedGravity(self.model, self.data, q)
+
+    def coriolis_matrix(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """C(q, q') in Christoffel form (M' - 2C skew-symmetric)."""
+        return pin.computeCoriolisMatrix(self.model, self.data, q, v).copy()
+
+    def tool_position(self, q: np.ndarray) -> np.ndarray:
+        """End-effector position r = phi(q) in the x-y plane (5.2)."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return self.data.oMf[self.tool].translation[:2].copy()
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """J(q), 2x2: r' = J q' (5.3)."""
+        J = pin.computeFrameJacobian(self.model, self.data, q, self.tool, pin.LOCAL_WORLD_ALIGNED)
+        return J[:2, :].copy()
+
+    def kinematics(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """r, J and J' q' at (q, q') in one pass."""
+        model, data = self.model, self.data
+        pin.forwardKinematics(model, data, q, v, self._zero)
+        pin.updateFramePlacement(model, data, self.tool)
+        r = data.oMf[self.tool].translation[:2].copy()
+        jdot_v = pin.getFrameClassicalAcceleration(
+            model, data, self.tool, pin.LOCAL_WORLD_ALIGNED
+        ).linear[:2].copy()
+        J = pin.computeFrameJacobian(model, data, q, self.tool, pin.LOCAL_WORLD_ALIGNED)[:2, :]
+        return r, J.copy(), jdot_v
+
+    def forward_dynamics(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """q'' from M q'' + C q' + G = tau (articulated-body algorithm)."""
+        return pin.aba(self.model, self.data, q, v, tau).copy()
+
+    def inverse_kinematics(self, r: np.ndarray, elbow_sign: float = -1.0) -> np.ndarray:
+        """Joint angles reaching ``r`` with sign(sin theta2) = elbow_sign (ch. 6.3 inverse kinematics).
+
+        The default branch (sin(theta2) < 0) is the one printed for ch. 6.
+        """
+        d1, d2 = self.params.length
+        x, y = float(r[0]), float(r[1])
+        rr = x * x + y * y
+        c2 = (rr - d1 * d1 - d2 * d2) / (2 * d1 * d2)
+        if not -1.0 <= c2 <= 1.0:
+            raise ValueError(f"point {r} is out of reach")
+        s2 = math.copysign(math.sqrt(1.0 - c2 * c2), elbow_sign)
+        c1 = ((d1 + d2 * c2) * x + d2 * s2 * y) / rr
+        s1 = ((d1 + d2 * c2) * y - d2 * s2 * x) / rr
+        return np.array([math.atan2(s1, c1), math.atan2(s2, c2)])
+
+
+def closed_form_dynamics(
+    params: LinkParameters, q: np.ndarray, v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """M, C, G of eq. (2.103) and J of eq. (6.117) as printed (for checking the model).
+
+    Thesis letters: d_i link length, l_i centre-of-mass distance (ch. 2 notation).
+    """
+    m1, m2 = params.mass
+    I1, I2 = params.inertia
+    d1, d2 = params.length
+    l1, l2 = params.com
+    g = params.gravity
+    c1, c2, c12 = math.cos(q[0]), math.cos(q[1]), math.cos(q[0] + q[1])
+    s1, s2, s12 = math.sin(q[0]), math.sin(q[1]), math.sin(q[0] + q[1])
+    h = m2 * d1 * l2 * s2
+    M = np.array([
+        [I1 + m1 * l1**2 + I2 + m2 * (d1**2 + l2**2 + 2 * d1 * l2 * c2),
+         I2 + m2 * (l2**2 + d1 * l2 * c2)],
+        [I2 + m2 * (l2**2 + d1 * l2 * c2), I2 + m2 * l2**2],
+    ])
+    C = np.array([[-h * v[1], -h * (v[0] + v[1])], [h * v[0], 0.0]])
+    G = np.array([(m1 * l1 + m2 * d1) * g * c1 + m2 * l2 * g * c12, m2 * l2 * g * c12])
+    J = np.array([[-d1 * s1 - d2 * s12, -d2 * s12], [d1 * c1 + d2 * c12, d2 * c12]])
+    return M, C, G, J

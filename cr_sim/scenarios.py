@@ -1,0 +1,23 @@
+"""Registry of the simulated plants (one module per plant/scenario)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from cr_control.parameters import Param, resolve
+from cr_sim import compliant_plane_arm
+from cr_sim.plant import Plant
+
+#: scenario name -> (parameters, factory taking the converted parameter values)
+SCENARIOS: dict[str, tuple[list[Param], Callable[[dict], Plant]]] = {
+    compliant_plane_arm.NAME: (compliant_plane_arm.PARAMETERS, compliant_plane_arm.CompliantPlaneArm),
+}
+
+
+def make_plant(scenario: str, overrides: dict[str, Any] | None = None) -> Plant:
+    """A plant of ``scenario`` with the thesis defaults and ``overrides`` (ROS-style values)."""
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; known: {sorted(SCENARIOS)}")
+    params, factory = SCENARIOS[scenario]
+    return factory(resolve(params, overrides))
