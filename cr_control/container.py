@@ -1,0 +1,42 @@
+"""Composed mode: plant and controller nodes in one process on one executor.
+
+Like a ROS 2 component container: the same node classes as the separate executables,
+sharing one EventsExecutor, for the lowest state -> command latency. The process ends
+when the plant finishes its ``duration``.
+
+    python -m cr_control.container SCHEME [--ros-args --params-file FILE ...]
+"""
+
+from __future__ import annotations
+
+import sys
+
+import rclpy
+
+from cr_control.controller_node import ControllerNode
+from cr_control.ros_parameters import ParameterError
+from cr_control.schemes import SCHEMES
+from cr_control.spin import spin_nodes
+from cr_sim.plant_node import PlantNode
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the plant and the controller of the scheme named first on the command line."""
+    argv = list(sys.argv if args is None else args)
+    if len(argv) < 2 or argv[1] not in SCHEMES:
+        print(f"usage: container SCHEME [--ros-args ...]; schemes: {sorted(SCHEMES)}", file=sys.stderr)
+        return 2
+    scheme = argv.pop(1)
+    rclpy.init(args=argv)
+    try:
+        nodes = [ControllerNode(scheme), PlantNode()]
+    except ParameterError as exc:
+        print(f"container: refused to start: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 1
+    spin_nodes(nodes, until=nodes[1].finished)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
