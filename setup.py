@@ -9,6 +9,8 @@ PACKAGE = "cr_control"
 # Per-scheme executables only choose the scheme of the one generic controller node.
 SCHEMES = [
     "adaptive_impedance",
+    "robust_adaptive_impedance",
+    "nn_adaptive_impedance",
 ]
 
 setup(

@@ -6,11 +6,15 @@ from typing import Any
 
 from cr_control.adaptive_impedance import AdaptiveImpedanceController
 from cr_control.controller import Controller
+from cr_control.nn_adaptive_impedance import NNAdaptiveImpedanceController
 from cr_control.parameters import resolve
+from cr_control.robust_adaptive_impedance import RobustAdaptiveImpedanceController
 
 #: scheme name -> (controller class, default plant scenario)
 SCHEMES: dict[str, tuple[type[Controller], str]] = {
     "adaptive_impedance": (AdaptiveImpedanceController, "compliant_plane"),
+    "robust_adaptive_impedance": (RobustAdaptiveImpedanceController, "compliant_plane"),
+    "nn_adaptive_impedance": (NNAdaptiveImpedanceController, "compliant_plane"),
 }
 
 
