@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-URDF_PATH = Path(__file__).resolve().parent.parent / "config" / "two_link_arm.urdf"
+from cr_control.paths import config_file
+
+URDF_NAME = "two_link_arm.urdf"
 TOOL_FRAME = "tool0"
 GRAVITY = 9.8
 
@@ -56,10 +58,10 @@ class LinkParameters:
         ])
 
 
-def build_model(params: LinkParameters, urdf: Path = URDF_PATH) -> pin.Model:
-    """Pinocchio model of the arm: URDF structure with ``params`` applied."""
+def build_model(params: LinkParameters, urdf: Path | None = None) -> pin.Model:
+    """Pinocchio model of the arm: URDF structure (default: the shipped one) with ``params`` applied."""
     params.validate()
-    model = pin.buildModelFromUrdf(str(urdf))
+    model = pin.buildModelFromUrdf(str(urdf or config_file(URDF_NAME)))
     model.gravity.linear = np.array([0.0, -params.gravity, 0.0])
     joint2 = model.getJointId("joint2")
     model.jointPlacements[joint2].translation = np.array([params.length[0], 0.0, 0.0])
@@ -79,7 +81,7 @@ class TwoLinkArm:
 
     joint_names = ("joint1", "joint2")
 
-    def __init__(self, params: LinkParameters | None = None, urdf: Path = URDF_PATH):
+    def __init__(self, params: LinkParameters | None = None, urdf: Path | None = None):
         self.params = params or LinkParameters()
         self.model = build_model(self.params, urdf)
         self.data = self.model.createData()

@@ -12,9 +12,9 @@ simulated time (0 = run until stopped).
 
 from __future__ import annotations
 
-import math
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 import rclpy
@@ -52,6 +52,16 @@ NODE_PARAMETERS = [
 ]
 
 
+SCENARIO_PARAMETER = Param("scenario", "compliant_plane", "Simulated scenario.", "choice",
+                           choices=tuple(SCENARIOS), read_only=True)
+
+
+def plant_parameters(scenario: str) -> list[Param]:
+    """Every parameter of the plant node running ``scenario``, in declaration order."""
+    specs = SCENARIOS[scenario][0]
+    return [replace(SCENARIO_PARAMETER, default=scenario), *NODE_PARAMETERS, *specs]
+
+
 def to_time(seconds: float) -> Time:
     """builtin_interfaces/Time of ``seconds``."""
     ns = int(round(seconds * 1e9))
@@ -63,8 +73,7 @@ class PlantNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("plant", **kwargs)
-        scenario = declare(self, [Param("scenario", "compliant_plane", "Simulated scenario.",
-                                        "choice", choices=tuple(SCENARIOS), read_only=True)])
+        scenario = declare(self, [SCENARIO_PARAMETER])
         specs, factory = SCENARIOS[scenario["scenario"]]
         self.settings = declare(self, NODE_PARAMETERS)
         self.plant = factory(declare(self, specs))
@@ -220,7 +229,7 @@ class PlantNode(Node):
         elapsed, self._last_tick = now - self._last_tick, now
         fresh = self.command_stamp is not None and self.command_stamp == self.state_stamp
         start = time.perf_counter()
-        substeps = max(1, math.ceil(elapsed / self.period - 1e-6))
+        substeps = max(1, round(elapsed / self.period))  # steps of at most ~1.5 periods
         for _ in range(substeps):
             self.plant.step(self.command, elapsed / substeps)
         self.stats.cycle(fresh, time.perf_counter() - start)

@@ -1,0 +1,39 @@
+# Two commands on a fresh machine (README): `make demo` and `make test`.
+# Both create the virtual environment from PyPI (pinned versions) if it is not there.
+
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+SCHEME ?= adaptive_impedance
+DURATION ?= 10
+MODE ?= realtime
+OUT ?= sessions
+DEMO_ARGS ?=
+
+.PHONY: demo test lint benchmark venv clean
+
+venv: $(STAMP)
+
+$(STAMP): requirements.txt constraints.txt setup.py
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -r requirements.txt -c constraints.txt
+	$(BIN)/pip install --quiet --no-deps -e .
+	touch $(STAMP)
+
+## A recorded, analysed 10 s session: plant, controller and recorder over ROS 2 at 1 kHz.
+demo: $(STAMP)
+	$(BIN)/cr_session --scheme $(SCHEME) --duration $(DURATION) --mode $(MODE) --out $(OUT) $(DEMO_ARGS)
+
+## Lint and the whole test suite.
+test: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q test
+
+## Real-time figures: sessions across processes and composed vs a bare rclpy echo pair.
+benchmark: $(STAMP)
+	$(BIN)/cr_benchmark
+
+clean:
+	rm -rf $(VENV) build install log *.egg-info

@@ -1,0 +1,260 @@
+"""The session runner: a recorded, analysed control session in one command.
+
+Starts the recorder, the controller and the plant as separate processes (or plant and
+controller composed in one process with ``--composed``), runs for ``--duration``
+simulated seconds, stops everything cleanly, then prints the analysis and writes the
+plots. Every process runs with localhost-only discovery and the session's own domain id.
+
+    cr_session --scheme adaptive_impedance --duration 10
+    cr_session --mode lockstep -p adaptive_impedance.Q_c=[50.0,50.0] --out /tmp/runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cr_control import topics
+from cr_control.paths import config_file
+from cr_control.ros_env import isolated_env
+from cr_control.schemes import SCHEMES, default_scenario
+
+STARTUP_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 15.0
+
+
+class SessionError(RuntimeError):
+    """A session could not run; the message says why and where the logs are."""
+
+
+@dataclass
+class SessionConfig:
+    """What to run."""
+
+    scheme: str = "adaptive_impedance"
+    duration: float = 10.0
+    mode: str = "realtime"
+    composed: bool = False
+    record: bool = True
+    out: Path = Path("sessions")
+    params_files: list[Path] = field(default_factory=list)
+    overrides: list[str] = field(default_factory=list)
+    domain_id: int | None = None
+    name: str | None = None
+
+
+@dataclass
+class SessionResult:
+    """Where a finished session put its files."""
+
+    directory: Path
+    mcap: Path | None
+    params: Path
+    logs: Path
+
+
+def _load_params_file(path: Path) -> dict[str, dict[str, Any]]:
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict):
+        raise SessionError(f"{path}: not a ROS params file")
+    return {node: dict((body or {}).get("ros__parameters", {})) for node, body in data.items()}
+
+
+def _parse_override(text: str) -> tuple[str, str, Any]:
+    """``node.param=value`` -> (node, param, YAML-parsed value)."""
+    key, sep, raw = text.partition("=")
+    node, dot, name = key.partition(".")
+    if not sep or not dot or not node or not name:
+        raise SessionError(f"override {text!r} is not of the form node.param=value")
+    return node, name, yaml.safe_load(raw)
+
+
+def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, Any]]:
+    """Parameters of every node of the session: shipped defaults, files, overrides."""
+    scenario = default_scenario(cfg.scheme)
+    params = _load_params_file(config_file(f"{cfg.scheme}.yaml"))
+    params.update(_load_params_file(config_file(f"plant_{scenario}.yaml")))
+    params["plant"].update(scenario=scenario, mode=cfg.mode, duration=float(cfg.duration),
+                           wait_for_recorder=cfg.record)
+    params["recorder"] = {
+        "output": str(mcap),
+        "topics": [topics.JOINT_STATES, topics.WRENCH, topics.JOINT_COMMANDS, topics.PLANT_TIMING,
+                   topics.PARAMETER_EVENTS, topics.reference_topic(cfg.scheme),
+                   topics.status_topic(cfg.scheme)] + ([topics.CLOCK] if cfg.mode == "lockstep" else []),
+        "parameter_nodes": ["plant", cfg.scheme],
+    }
+    for path in cfg.params_files:
+        for node, values in _load_params_file(path).items():
+            params.setdefault(node, {}).update(values)
+    for text in cfg.overrides:
+        node, name, value = _parse_override(text)
+        params.setdefault(node, {})[name] = value
+    return params
+
+
+class Session:
+    """The processes of one session and their logs."""
+
+    def __init__(self, cfg: SessionConfig, progress=print):
+        if cfg.scheme not in SCHEMES:
+            raise SessionError(f"unknown scheme {cfg.scheme!r}; known: {sorted(SCHEMES)}")
+        if cfg.mode not in ("realtime", "lockstep"):
+            raise SessionError(f"mode must be realtime or lockstep, not {cfg.mode!r}")
+        if not cfg.duration > 0:
+            raise SessionError("duration must be > 0")
+        self.cfg = cfg
+        self.progress = progress
+        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+        name = cfg.name or f"{stamp}-{cfg.scheme}-{cfg.mode}{'-composed' if cfg.composed else ''}"
+        self.dir = Path(cfg.out) / name
+        self.logs = self.dir / "logs"
+        self.mcap = self.dir / "session.mcap"
+        self.params_path = self.dir / "params.yaml"
+        self.env = isolated_env(cfg.domain_id)
+        self.env.setdefault("PYTHONUNBUFFERED", "1")
+        self.processes: dict[str, subprocess.Popen] = {}
+
+    def _start(self, name: str, module: str, *args: str) -> subprocess.Popen:
+        log = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
+        cmd = [sys.executable, "-m", module, *args, "--ros-args", "--params-file", str(self.params_path)]
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
+                                start_new_session=True)
+        proc.log = log  # type: ignore[attr-defined]
+        self.processes[name] = proc
+        return proc
+
+    def _tail(self, name: str, lines: int = 15) -> str:
+        path = self.logs / f"{name}.log"
+        text = path.read_text(errors="replace").splitlines() if path.exists() else []
+        return "\n".join(f"    {line}" for line in text[-lines:] if "RTPS_TRANSPORT_SHM" not in line)
+
+    def run(self) -> SessionResult:
+        """Run the session to the end; SessionError (with log tails) if a process fails."""
+        cfg = self.cfg
+        self.logs.mkdir(parents=True, exist_ok=True)
+        params = session_parameters(cfg, self.mcap)
+        self.params_path.write_text(yaml.safe_dump(
+            {node: {"ros__parameters": values} for node, values in params.items()}, sort_keys=False))
+        self.progress(f"session {self.dir} (ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']}, "
+                      f"discovery {self.env['ROS_AUTOMATIC_DISCOVERY_RANGE']})")
+        try:
+            if cfg.record:
+                self._start("recorder", "cr_control.recorder")
+            if cfg.composed:
+                main = self._start("container", "cr_control.container", cfg.scheme)
+            else:
+                self._start(cfg.scheme, "cr_control.controller_node", cfg.scheme)
+                main = self._start("plant", "cr_sim.plant_node")
+            self._wait(main, "container" if cfg.composed else "plant")
+        finally:
+            self.stop()
+        return SessionResult(self.dir, self.mcap if cfg.record else None, self.params_path, self.logs)
+
+    def _wait(self, main: subprocess.Popen, main_name: str) -> None:
+        cfg = self.cfg
+        budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
+        deadline = time.monotonic() + budget
+        last = ""
+        while main.poll() is None:
+            for name, proc in self.processes.items():
+                if proc is not main and proc.poll() is not None:
+                    raise SessionError(f"{name} exited early (code {proc.returncode}):\n{self._tail(name)}")
+            if time.monotonic() > deadline:
+                raise SessionError(
+                    f"{main_name} did not finish within {budget:.0f} s:\n{self._tail(main_name)}")
+            line = self._last_progress(main_name)
+            if line and line != last:
+                self.progress(f"  {line}")
+                last = line
+            time.sleep(0.25)
+        if main.returncode != 0:
+            raise SessionError(f"{main_name} failed (code {main.returncode}):\n{self._tail(main_name)}")
+
+    def _last_progress(self, name: str) -> str:
+        path = self.logs / f"{name}.log"
+        try:
+            lines = [ln for ln in path.read_text(errors="replace").splitlines() if "] [plant]: t=" in ln]
+        except OSError:
+            return ""
+        return lines[-1].split("]: ", 1)[-1] if lines else ""
+
+    def stop(self) -> None:
+        """Stop every process still running: SIGINT, then SIGKILL after a timeout."""
+        for proc in self.processes.values():
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGINT)
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        for name, proc in self.processes.items():
+            try:
+                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.progress(f"{name} did not stop on SIGINT: killing it")
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            proc.log.close()  # type: ignore[attr-defined]
+
+
+def analyse(result: SessionResult, progress=print) -> None:
+    """Print the session's metrics and write its plots next to the recording."""
+    from cr_control.analysis import format_metrics, load_session, metrics, plot_session
+
+    session = load_session(result.mcap)
+    progress(format_metrics([(session.controller or result.directory.name, metrics(session))]))
+    paths = plot_session(session, result.directory / "plots")
+    progress(f"plots: {', '.join(str(p) for p in paths)}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Command-line interface of cr_session."""
+    p = argparse.ArgumentParser(prog="cr_session", description=__doc__.split("\n\n")[0])
+    p.add_argument("--scheme", default="adaptive_impedance", choices=sorted(SCHEMES))
+    p.add_argument("--duration", type=float, default=10.0, help="simulated seconds (default 10)")
+    p.add_argument("--mode", default="realtime", choices=["realtime", "lockstep"])
+    p.add_argument("--composed", action="store_true", help="plant and controller in one process")
+    p.add_argument("--out", type=Path, default=Path("sessions"), help="parent directory of sessions")
+    p.add_argument("--name", help="session directory name (default: time, scheme, mode)")
+    p.add_argument("--params-file", type=Path, action="append", default=[],
+                   help="extra ROS params file(s) (node names: plant, recorder, the scheme)")
+    p.add_argument("-p", "--set", dest="overrides", action="append", default=[],
+                   metavar="NODE.PARAM=VALUE", help="override one parameter, e.g. plant.stiffness=300.0")
+    p.add_argument("--no-record", action="store_true", help="run without the recorder")
+    p.add_argument("--no-analysis", action="store_true", help="do not analyse the recording")
+    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: from $ROS_DOMAIN_ID or pid)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one session from the command line."""
+    args = build_parser().parse_args(argv)
+    cfg = SessionConfig(scheme=args.scheme, duration=args.duration, mode=args.mode,
+                        composed=args.composed, record=not args.no_record, out=args.out,
+                        params_files=args.params_file, overrides=args.overrides,
+                        domain_id=args.domain_id, name=args.name)
+    try:
+        session = Session(cfg)
+        result = session.run()
+        print(f"recording: {result.mcap}" if result.mcap else "not recorded")
+        print(f"logs: {result.logs}")
+        if result.mcap and not args.no_analysis:
+            analyse(result)
+    except (SessionError, FileNotFoundError) as exc:
+        print(f"cr_session: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("cr_session: interrupted; processes stopped", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
