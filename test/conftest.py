@@ -1,9 +1,9 @@
 """Every ROS test is isolated: localhost-only discovery and its own domain id."""
 
-import itertools
 import os
 
 import pytest
+from ros_probe import next_domain
 
 from cr_control.ros_env import FIRST_DOMAIN, isolated_env
 
@@ -12,10 +12,8 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", str(FIRST_DOMAIN + os.getpid() % 50))
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-_domains = (51 + i % 50 for i in itertools.count(os.getpid()))
-
 
 @pytest.fixture
 def ros_env() -> dict[str, str]:
     """Environment for subprocesses of one test: localhost discovery, a fresh domain id."""
-    return isolated_env(domain_id=next(_domains), base={**os.environ, "ROS_DOMAIN_ID": ""})
+    return isolated_env(domain_id=next_domain())
