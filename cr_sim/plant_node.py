@@ -242,11 +242,13 @@ class PlantNode(Node):
         if not self._started:
             return
         now = time.monotonic()
-        self._timing_msg.data = [self.plant.time, *self.stats.report(now)]
+        stamp = self.state_stamp[0] + self.state_stamp[1] * 1e-9 if self.state_stamp else 0.0
+        self._timing_msg.data = [stamp, *self.stats.report(now)]
         self.timing_pub.publish(self._timing_msg)
         d = dict(zip(topics.PLANT_TIMING_FIELDS, self._timing_msg.data, strict=True))
         self.get_logger().info(
-            f"t={d['stamp']:.1f} s rate={d['rate_hz']:.0f} Hz fresh={100 * d['window_fresh_share']:.2f}% "
+            f"t={self.plant.time:.1f} s rate={d['rate_hz']:.0f} Hz "
+            f"fresh={100 * d['window_fresh_share']:.2f}% "
             f"round trip p50/p99/max={d['window_age_p50_ms']:.3f}/{d['window_age_p99_ms']:.3f}/"
             f"{d['window_age_max_ms']:.3f} ms step={d['step_time_us']:.0f} us")
 
