@@ -47,3 +47,18 @@ def test_metrics_from_the_recording(lockstep_session):
     assert m["pos_err_rms_last_half_m"] < 0.0135          # as offline: 12.6 mm
     assert m["f_err_x_min_N"] > -3.0 and m["loop_fresh_share"] == 1.0
     assert m["tau_peak_joint1_Nm"] < 6.0
+
+
+@pytest.mark.parametrize("scheme,fields", [
+    ("robust_adaptive_impedance", ("e_x", "e_y", "s_x", "s_y", "z_x", "d", "tau_1")),
+    ("nn_adaptive_impedance", ("e_x", "s_y", "M_r_hat_norm", "C_r_hat_norm", "G_r_norm", "tau_2")),
+])
+def test_chapter3_schemes_in_lockstep_match_offline(scheme, fields, tmp_path):
+    """The robust and network schemes over ROS (3 s lockstep) give the offline numbers."""
+    cfg = SessionConfig(scheme=scheme, duration=3.0, mode="lockstep", out=tmp_path,
+                        domain_id=next_domain(), name="run")
+    s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
+    reference = run_scheme(scheme, 3.0)
+    assert len(s.status["stamp"]) == 3000
+    for field in fields:
+        assert np.abs(s.status[field] - reference.column(field)).max() < 1e-6, field
