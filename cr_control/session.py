@@ -92,6 +92,7 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
                    topics.PARAMETER_EVENTS, topics.reference_topic(cfg.scheme),
                    topics.status_topic(cfg.scheme)] + ([topics.CLOCK] if cfg.mode == "lockstep" else []),
         "parameter_nodes": ["plant", cfg.scheme],
+        "ready_timeout": 30.0,
     }
     for path in cfg.params_files:
         for node, values in _load_params_file(path).items():
