@@ -36,6 +36,7 @@ setup(
             "cr_session = cr_control.session:main",
             "cr_analyze = cr_control.analysis:main",
             "cr_benchmark = cr_control.benchmark:main",
+            "cr_param = cr_control.param_tool:main",
         ]
         + [f"{name} = cr_control.controller_node:main_{name}" for name in SCHEMES],
     },

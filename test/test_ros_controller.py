@@ -140,3 +140,20 @@ def test_unknown_scheme_is_a_usage_error(ros_env):
     proc = subprocess.run([sys.executable, "-m", "cr_control.controller_node", "nope"], env=ros_env,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "schemes:" in proc.stderr
+
+
+def test_cr_param_sets_refuses_and_gets(controller):
+    """The command-line tool (no ros2 CLI here) uses the same services."""
+    domain = controller[0].context.get_domain_id()
+
+    def cr_param(*args):
+        return subprocess.run([sys.executable, "-m", "cr_control.param_tool", "--domain-id",
+                               str(domain), *args], capture_output=True, text=True, timeout=60)
+
+    ok = cr_param("set", NODE, "Q_b", "[7, 7]")             # integers coerced to doubles
+    assert ok.returncode == 0, ok.stderr
+    refused = cr_param("set", NODE, "Q_b", "[7.0, -7.0]")
+    assert refused.returncode == 1 and "positive definite" in refused.stderr
+    got = cr_param("get", NODE, "Q_b")
+    assert got.returncode == 0 and "7.0, 7.0" in got.stdout
+    assert "Q_b" in cr_param("list", NODE).stdout.split()
