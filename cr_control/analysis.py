@@ -745,21 +745,17 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
-def _stem_dir(base: Path, session: Session, used: set[str]) -> Path:
-    name = session.path.stem
-    while name in used:
-        name += "_"
-    used.add(name)
-    return base / name
+def _folder_name(label: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in label).strip("_") or "session"
 
 
 def _write_plots(sessions: Sequence[Session], out: Path) -> list[Path]:
+    """Each session's own figures (in a sub-folder named by its label when several)."""
     if len(sessions) == 1:
         return plot_session(sessions[0], out)
     written = compare(sessions, out)
-    used: set[str] = set()
-    for session in sessions:
-        written += plot_session(session, _stem_dir(out, session, used))
+    for session, label in zip(sessions, session_labels(sessions), strict=True):
+        written += plot_session(session, out / _folder_name(label))
     return written
 
 

@@ -88,7 +88,7 @@ DEFAULT_OPTIONAL_TOPICS = [topics.CLOCK]
 #: Reader history of the recorder's subscriptions. Deeper than the control loop's
 #: topics.QOS_DEPTH so that a chunk compression or a scheduling hiccup on a busy machine
 #: never overwrites messages that arrived but were not yet taken (costs only memory).
-SUBSCRIPTION_DEPTH = 100
+SUBSCRIPTION_DEPTH = 2000  # 2 s at 1 kHz: a lockstep loop on a loaded machine outruns it briefly
 #: The executor runs in slices of this length; between slices the recorder discovers
 #: topics, checks readiness and parameter requests, and notices a stop request.
 SLICE_S = 0.1

@@ -272,7 +272,7 @@ def test_cli_json_and_several_files(recorded, tmp_path, capsys):
     assert set(data) == {"synth_ctrl", "other_ctrl"}
     assert data["other_ctrl"]["pos_err_max_m"] == pytest.approx(0.02)
     assert (tmp_path / "o" / "comparison.txt").is_file()
-    assert png_ok(tmp_path / "o" / "other" / "position.png")
+    assert png_ok(tmp_path / "o" / "other_ctrl" / "position.png")  # a folder per session label
 
 
 def test_cli_default_plot_dir_is_next_to_the_file(tmp_path, capsys):
