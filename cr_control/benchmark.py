@@ -280,6 +280,8 @@ class Listener:
         from rclpy.task import Future
         from std_msgs.msg import Float64MultiArray
 
+        from cr_control.qos import CONTROL_QOS
+
         self._rclpy = rclpy
         self.pids = pids
         self.timing: list[tuple[float, dict[str, float]]] = []
@@ -295,8 +297,8 @@ class Listener:
         rclpy.init(context=self.context, domain_id=domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = Node("cr_benchmark", context=self.context)
-        reliable = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
-        self.node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, self._on_timing, reliable)
+        self.node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, self._on_timing,
+                                      CONTROL_QOS)
         if status_topic:
             best_effort = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
             self.node.create_subscription(Float64MultiArray, status_topic, self._on_status, best_effort,

@@ -15,16 +15,14 @@ import numpy as np
 import rclpy
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from cr_control import topics
+from cr_control.qos import CONTROL_QOS
 from cr_control.ros_parameters import ParameterError, declare, police_changes
 from cr_control.schemes import SCHEMES, controller_class
 from cr_control.spin import spin_nodes
-
-QOS = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def stamp_seconds(stamp) -> float:
@@ -49,17 +47,18 @@ class ControllerNode(Node):
         self._last_stamp = None
         self._last_command: JointState | None = None
 
-        self.command_pub = self.create_publisher(JointState, topics.JOINT_COMMANDS, QOS)
-        self.reference_pub = self.create_publisher(Float64MultiArray, f"~/{topics.REFERENCE_SUFFIX}", QOS)
-        self.status_pub = self.create_publisher(Float64MultiArray, f"~/{topics.STATUS_SUFFIX}", QOS)
+        publish = self.create_publisher
+        self.command_pub = publish(JointState, topics.JOINT_COMMANDS, CONTROL_QOS)
+        self.reference_pub = publish(Float64MultiArray, f"~/{topics.REFERENCE_SUFFIX}", CONTROL_QOS)
+        self.status_pub = publish(Float64MultiArray, f"~/{topics.STATUS_SUFFIX}", CONTROL_QOS)
         forward = self.controller.values["forward_command_topic"]
-        self.forward_pub = (self.create_publisher(Float64MultiArray, forward, QOS) if forward else None)
+        self.forward_pub = publish(Float64MultiArray, forward, CONTROL_QOS) if forward else None
         self._reference_msg = topics.labelled_array(
             Float64MultiArray, MultiArrayDimension, self.controller.reference_fields)
         self._status_msg = topics.labelled_array(
             Float64MultiArray, MultiArrayDimension, self.controller.status_fields)
-        self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, QOS)
-        self.create_subscription(JointState, topics.JOINT_STATES, self._on_joint_state, QOS)
+        self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, CONTROL_QOS)
+        self.create_subscription(JointState, topics.JOINT_STATES, self._on_joint_state, CONTROL_QOS)
         self.get_logger().info(
             f"{scheme}: {len(specs)} parameters, commanding {self.joint_names} "
             f"({self.controller.command_interface})")

@@ -27,17 +27,16 @@ import time
 import rclpy
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from cr_control import topics
+from cr_control.qos import CONTROL_QOS
 from cr_control.ros_env import isolate_this_process
 from cr_control.spin import spin_nodes
 from cr_sim.loop_stats import LoopStats
 
-QOS = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 JOINT_NAMES = ["joint1", "joint2"]
 RESULT_PREFIX = "ECHO_RESULT "
 
@@ -58,13 +57,13 @@ class EchoSource(Node):
         self._t0 = 0.0
         self.last_report: dict[str, float] = {}
 
-        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, QOS)
-        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, QOS)
-        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, QOS)
+        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, CONTROL_QOS)
+        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, CONTROL_QOS)
+        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, CONTROL_QOS)
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                  topics.PLANT_TIMING_FIELDS)
         self.command_sub = self.create_subscription(JointState, topics.JOINT_COMMANDS,
-                                                    self._on_command, QOS)
+                                                    self._on_command, CONTROL_QOS)
         # Created here, started later: EventsExecutor misses timers created in callbacks.
         self._tick_timer = self.create_timer(self.period, self._tick, autostart=False)
         self._timing_timer = self.create_timer(1.0, self._publish_timing, autostart=False)
@@ -149,9 +148,9 @@ class Echo(Node):
         super().__init__("echo", **kwargs)
         self.force = (0.0, 0.0, 0.0)
         self.answered = 0
-        self.command_pub = self.create_publisher(JointState, topics.JOINT_COMMANDS, QOS)
-        self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, QOS)
-        self.create_subscription(JointState, topics.JOINT_STATES, self._on_state, QOS)
+        self.command_pub = self.create_publisher(JointState, topics.JOINT_COMMANDS, CONTROL_QOS)
+        self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, CONTROL_QOS)
+        self.create_subscription(JointState, topics.JOINT_STATES, self._on_state, CONTROL_QOS)
 
     def _on_wrench(self, msg: WrenchStamped) -> None:
         f = msg.wrench.force

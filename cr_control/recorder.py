@@ -74,6 +74,7 @@ from rclpy.task import Future
 from std_msgs.msg import Bool
 
 from cr_control import topics
+from cr_control.qos import READY_QOS
 
 DEFAULT_TOPICS = [
     topics.JOINT_STATES,
@@ -483,9 +484,7 @@ class Recorder(Node):
         self._ready = False
         self._warned_types: set[str] = set()
         self._fetches: list[_ParameterFetch] | None = None  # None: not started
-        ready_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self._ready_pub = self.create_publisher(Bool, topics.RECORDER_READY, ready_qos)
+        self._ready_pub = self.create_publisher(Bool, topics.RECORDER_READY, READY_QOS)
         self.get_logger().info(f"recording {', '.join(self._wanted)} to {self.output}")
 
     def _strings(self, name: str) -> list[str]:

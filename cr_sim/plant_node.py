@@ -21,7 +21,6 @@ import rclpy
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -29,14 +28,11 @@ from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension
 
 from cr_control import topics
 from cr_control.parameters import Param
+from cr_control.qos import CONTROL_QOS, READY_QOS
 from cr_control.ros_parameters import ParameterError, declare
 from cr_control.spin import spin_nodes
 from cr_sim.loop_stats import LoopStats
 from cr_sim.scenarios import SCENARIOS
-
-QOS = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
-READY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 NODE_PARAMETERS = [
     Param("mode", "realtime", "realtime: wall-clock timer; lockstep: step on each command.",
@@ -94,14 +90,14 @@ class PlantNode(Node):
         self._last_tick = 0.0
         self._last_publish_wall = 0.0
 
-        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, QOS)
-        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, QOS)
-        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, QOS)
-        self.clock_pub = self.create_publisher(Clock, topics.CLOCK, QOS) if self.lockstep else None
+        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, CONTROL_QOS)
+        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, CONTROL_QOS)
+        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, CONTROL_QOS)
+        self.clock_pub = self.create_publisher(Clock, topics.CLOCK, CONTROL_QOS) if self.lockstep else None
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                  topics.PLANT_TIMING_FIELDS)
         self.command_sub = self.create_subscription(JointState, topics.JOINT_COMMANDS,
-                                                    self._on_command, QOS)
+                                                    self._on_command, CONTROL_QOS)
         if self.settings["wait_for_recorder"]:
             self.create_subscription(Bool, topics.RECORDER_READY, self._on_recorder_ready, READY_QOS)
         # Timers are made here and started later: EventsExecutor does not pick up timers
