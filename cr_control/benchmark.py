@@ -29,9 +29,7 @@ import json
 import math
 import os
 import re
-import signal
 import struct
-import subprocess
 import sys
 import tempfile
 import threading
@@ -45,10 +43,9 @@ from typing import Any
 from cr_control import topics
 from cr_control.echo_pair import parse_result
 from cr_control.ros_env import DOMAIN_SPAN, FIRST_DOMAIN, free_domain_id, isolated_env
+from cr_control.session import STARTUP_TIMEOUT_S, ProcessGroup, Session, SessionConfig, SessionError
 
 SCHEME = "adaptive_impedance"
-STARTUP_TIMEOUT_S = 60.0
-STOP_TIMEOUT_S = 15.0
 #: CPU used by other processes (% of one core) above which a run is flagged as disturbed.
 DISTURBED_PCT = 20.0
 
@@ -404,8 +401,6 @@ def _steady_figures(listener: Listener | None, names: dict[str, str]) -> dict[st
 def run_session(title: str, domain: int, out: Path, duration: float, mode: str, composed: bool,
                 progress: Progress, compute_time: bool) -> dict[str, Any]:
     """One session without recorder; its loop, CPU and compute figures."""
-    from cr_control.session import Session, SessionConfig, SessionError
-
     progress.begin(title)
     name = re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
     session = Session(SessionConfig(scheme=SCHEME, duration=duration, mode=mode, composed=composed,
@@ -448,51 +443,29 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
     env.setdefault("PYTHONUNBUFFERED", "1")
     progress(f"echo pair {logs} (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, "
              f"discovery {env['ROS_AUTOMATIC_DISCOVERY_RANGE']})")
-    procs: dict[str, subprocess.Popen] = {}
-    files = []
+    group = ProcessGroup(logs, env, progress)
 
-    def start(name: str, role: str) -> subprocess.Popen:
-        log = open(logs / f"{name}.log", "w")  # noqa: SIM115 - closed below
-        files.append(log)
-        cmd = [sys.executable, "-m", "cr_control.echo_pair", role, "--duration", str(duration),
-               "--rate", str(rate_hz)]
-        procs[name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
-                                       start_new_session=True)
-        return procs[name]
+    def start(name: str, role: str) -> None:
+        group.start(name, [sys.executable, "-m", "cr_control.echo_pair", role,
+                           "--duration", str(duration), "--rate", str(rate_hz)])
 
     fig: dict[str, Any] = {"domain_id": domain, "logs": str(logs)}
-    listener = Listener(domain, lambda: {k: p.pid for k, p in list(procs.items())})
+    listener = Listener(domain, lambda: {k: p.pid for k, p in list(group.processes.items())})
     main_name = "echo_pair" if composed else "source"
     try:
         if composed:
-            main = start(main_name, "both")
+            start(main_name, "both")
         else:
             start("echo", "echo")
-            main = start(main_name, "source")
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S + 2 * duration
-        last = ""
-        while main.poll() is None:
-            others = [n for n, p in procs.items() if p is not main and p.poll() is not None]
-            if others:
-                raise RuntimeError(f"{others[0]} exited early")
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"{main_name} did not finish in time")
-            line = _last_line(logs / f"{main_name}.log", "] [echo_source]: t=")
-            if line and line != last:
-                progress(line)
-                last = line
-            time.sleep(0.25)
-        if main.returncode != 0:
-            raise RuntimeError(f"{main_name} failed (code {main.returncode})")
-    except RuntimeError as exc:
+            start(main_name, "source")
+        group.wait(main_name, STARTUP_TIMEOUT_S + 2 * duration, "] [echo_source]: t=")
+    except SessionError as exc:
         fig["error"] = f"{exc}; logs in {logs}"
         progress(f"FAILED: {exc}")
     finally:
         time.sleep(0.2)
         listener.close()
-        _stop(procs)
-        for f in files:
-            f.close()
+        group.stop()
     text = (logs / f"{main_name}.log").read_text(errors="replace")
     result = parse_result(text)
     done = parse_done_line(text)
@@ -503,28 +476,6 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
     if done is None and "error" not in fig:
         fig["error"] = f"no 'done:' line in {logs / main_name}.log"
     return fig
-
-
-def _last_line(path: Path, marker: str) -> str:
-    try:
-        lines = [ln for ln in path.read_text(errors="replace").splitlines() if marker in ln]
-    except OSError:
-        return ""
-    return lines[-1].split("]: ", 1)[-1] if lines else ""
-
-
-def _stop(procs: dict[str, subprocess.Popen]) -> None:
-    """SIGINT every process of ours still running, SIGKILL after a timeout."""
-    for proc in procs.values():
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)
-    deadline = time.monotonic() + STOP_TIMEOUT_S
-    for proc in procs.values():
-        try:
-            proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
 
 
 def run_offline(duration: float, progress: Progress) -> dict[str, Any]:

@@ -103,6 +103,78 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
     return params
 
 
+class ProcessGroup:
+    """Child processes of one run: each in a process group of its own, output to a log file."""
+
+    def __init__(self, logs: Path, env: dict[str, str], progress=print):
+        self.logs = logs
+        self.env = env
+        self.progress = progress
+        self.processes: dict[str, subprocess.Popen] = {}
+        self._files: list = []
+
+    def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
+        """Start ``cmd`` as ``name``, its output going to logs/<name>.log."""
+        log = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 - closed by stop()
+        self._files.append(log)
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
+                                start_new_session=True)
+        self.processes[name] = proc
+        return proc
+
+    def tail(self, name: str, lines: int = 15) -> str:
+        """The last lines of a process's log, indented (Fast DDS shared-memory noise left out)."""
+        path = self.logs / f"{name}.log"
+        text = path.read_text(errors="replace").splitlines() if path.exists() else []
+        return "\n".join(f"    {line}" for line in text[-lines:] if "RTPS_TRANSPORT_SHM" not in line)
+
+    def last_line(self, name: str, marker: str) -> str:
+        """The message of the last log line of ``name`` containing ``marker`` ("" if none)."""
+        try:
+            text = (self.logs / f"{name}.log").read_text(errors="replace")
+        except OSError:
+            return ""
+        lines = [ln for ln in text.splitlines() if marker in ln]
+        return lines[-1].split("]: ", 1)[-1] if lines else ""
+
+    def wait(self, main_name: str, budget: float, progress_marker: str) -> None:
+        """Wait for ``main_name`` to end, echoing its progress lines; SessionError (with the
+        log tail) if it fails, takes longer than ``budget`` s, or another process dies first."""
+        main = self.processes[main_name]
+        deadline = time.monotonic() + budget
+        last = ""
+        while main.poll() is None:
+            for name, proc in self.processes.items():
+                if proc is not main and proc.poll() is not None:
+                    raise SessionError(f"{name} exited early (code {proc.returncode}):\n{self.tail(name)}")
+            if time.monotonic() > deadline:
+                raise SessionError(
+                    f"{main_name} did not finish within {budget:.0f} s:\n{self.tail(main_name)}")
+            line = self.last_line(main_name, progress_marker)
+            if line and line != last:
+                self.progress(f"  {line}")
+                last = line
+            time.sleep(0.25)
+        if main.returncode != 0:
+            raise SessionError(f"{main_name} failed (code {main.returncode}):\n{self.tail(main_name)}")
+
+    def stop(self) -> None:
+        """Stop every process still running: SIGINT, then SIGKILL after a timeout."""
+        for proc in self.processes.values():
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGINT)
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        for name, proc in self.processes.items():
+            try:
+                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.progress(f"{name} did not stop on SIGINT: killing it")
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        for log in self._files:
+            log.close()
+
+
 class Session:
     """The processes of one session and their logs."""
 
@@ -123,21 +195,16 @@ class Session:
         self.params_path = self.dir / "params.yaml"
         self.env = isolated_env(cfg.domain_id)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
-        self.processes: dict[str, subprocess.Popen] = {}
+        self.group = ProcessGroup(self.logs, self.env, progress)
 
-    def _start(self, name: str, module: str, *args: str) -> subprocess.Popen:
-        log = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 - closed with the process
-        cmd = [sys.executable, "-m", module, *args, "--ros-args", "--params-file", str(self.params_path)]
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
-                                start_new_session=True)
-        proc.log = log  # type: ignore[attr-defined]
-        self.processes[name] = proc
-        return proc
+    @property
+    def processes(self) -> dict[str, subprocess.Popen]:
+        """The session's processes by name."""
+        return self.group.processes
 
-    def _tail(self, name: str, lines: int = 15) -> str:
-        path = self.logs / f"{name}.log"
-        text = path.read_text(errors="replace").splitlines() if path.exists() else []
-        return "\n".join(f"    {line}" for line in text[-lines:] if "RTPS_TRANSPORT_SHM" not in line)
+    def _start(self, name: str, module: str, *args: str) -> None:
+        self.group.start(name, [sys.executable, "-m", module, *args,
+                                "--ros-args", "--params-file", str(self.params_path)])
 
     def run(self) -> SessionResult:
         """Run the session to the end; SessionError (with log tails) if a process fails."""
@@ -148,61 +215,24 @@ class Session:
             {node: {"ros__parameters": values} for node, values in params.items()}, sort_keys=False))
         self.progress(f"session {self.dir} (ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']}, "
                       f"discovery {self.env['ROS_AUTOMATIC_DISCOVERY_RANGE']})")
+        main = "container" if cfg.composed else "plant"
         try:
             if cfg.record:
                 self._start("recorder", "cr_control.recorder")
             if cfg.composed:
-                main = self._start("container", "cr_control.container", cfg.scheme)
+                self._start(main, "cr_control.container", cfg.scheme)
             else:
                 self._start(cfg.scheme, "cr_control.controller_node", cfg.scheme)
-                main = self._start("plant", "cr_sim.plant_node")
-            self._wait(main, "container" if cfg.composed else "plant")
+                self._start(main, "cr_sim.plant_node")
+            budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
+            self.group.wait(main, budget, "] [plant]: t=")
         finally:
             self.stop()
         return SessionResult(self.dir, self.mcap if cfg.record else None, self.params_path, self.logs)
 
-    def _wait(self, main: subprocess.Popen, main_name: str) -> None:
-        cfg = self.cfg
-        budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
-        deadline = time.monotonic() + budget
-        last = ""
-        while main.poll() is None:
-            for name, proc in self.processes.items():
-                if proc is not main and proc.poll() is not None:
-                    raise SessionError(f"{name} exited early (code {proc.returncode}):\n{self._tail(name)}")
-            if time.monotonic() > deadline:
-                raise SessionError(
-                    f"{main_name} did not finish within {budget:.0f} s:\n{self._tail(main_name)}")
-            line = self._last_progress(main_name)
-            if line and line != last:
-                self.progress(f"  {line}")
-                last = line
-            time.sleep(0.25)
-        if main.returncode != 0:
-            raise SessionError(f"{main_name} failed (code {main.returncode}):\n{self._tail(main_name)}")
-
-    def _last_progress(self, name: str) -> str:
-        path = self.logs / f"{name}.log"
-        try:
-            lines = [ln for ln in path.read_text(errors="replace").splitlines() if "] [plant]: t=" in ln]
-        except OSError:
-            return ""
-        return lines[-1].split("]: ", 1)[-1] if lines else ""
-
     def stop(self) -> None:
         """Stop every process still running: SIGINT, then SIGKILL after a timeout."""
-        for proc in self.processes.values():
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGINT)
-        deadline = time.monotonic() + STOP_TIMEOUT_S
-        for name, proc in self.processes.items():
-            try:
-                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                self.progress(f"{name} did not stop on SIGINT: killing it")
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-            proc.log.close()  # type: ignore[attr-defined]
+        self.group.stop()
 
 
 def analyse(result: SessionResult, progress=print) -> None:
