@@ -42,8 +42,6 @@ class ControllerNode(Node):
         self.joint_names = list(self.controller.values["joint_names"])
         self._index_cache: tuple[tuple[str, ...], np.ndarray | None] = ((), None)
         self.force = np.zeros(3)
-        self.force_stamp = None
-        self.stale_force_cycles = 0
         self._last_stamp = None
         self._last_command: JointState | None = None
 
@@ -66,7 +64,6 @@ class ControllerNode(Node):
     def _on_wrench(self, msg: WrenchStamped) -> None:
         f = msg.wrench.force
         self.force[:] = (f.x, f.y, f.z)
-        self.force_stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
 
     def _joint_order(self, names: list[str]) -> np.ndarray | None:
         """Indices of our joints in a JointState's name list (None if any is missing)."""
@@ -86,8 +83,6 @@ class ControllerNode(Node):
             self.command_pub.publish(self._last_command)  # a repeated state: same answer
             return
         self._last_stamp = stamp
-        if self.force_stamp != stamp:
-            self.stale_force_cycles += 1
         order = self._joint_order(list(msg.name))
         position, velocity = np.asarray(msg.position), np.asarray(msg.velocity)
         if order is None or len(position) != len(msg.name) or len(velocity) != len(msg.name):

@@ -82,10 +82,6 @@ class CompliantPlane:
         self.stiffness = stiffness
         self.damping = damping
 
-    def signed_distance(self, r: np.ndarray) -> float:
-        """Distance of r from the plane, negative inside the environment."""
-        return float(self.normal @ r) + self.offset
-
     def force(self, r: np.ndarray, r_dot: np.ndarray) -> np.ndarray:
         """Contact force on the end effector (3.4), never pulling."""
         n0, n1 = self._n
@@ -94,10 +90,6 @@ class CompliantPlane:
             return np.zeros(2)
         push = self.stiffness * depth - self.damping * (n0 * r_dot[0] + n1 * r_dot[1])
         return max(push, 0.0) * self.normal
-
-    def nearest_point(self, r: np.ndarray) -> np.ndarray:
-        """The point of the plane nearest r."""
-        return r - self.signed_distance(r) * self.normal
 
 
 class CompliantPlaneArm(Plant):
