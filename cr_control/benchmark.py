@@ -42,7 +42,7 @@ from typing import Any
 
 from cr_control import topics
 from cr_control.echo_pair import parse_result
-from cr_control.ros_env import DOMAIN_SPAN, FIRST_DOMAIN, free_domain_id, isolated_env
+from cr_control.ros_env import DOMAIN_SPAN, FIRST_DOMAIN, free_domain_id, isolate_this_process, isolated_env
 from cr_control.session import STARTUP_TIMEOUT_S, ProcessGroup, Session, SessionConfig, SessionError
 
 SCHEME = "adaptive_impedance"
@@ -288,7 +288,7 @@ class Listener:
         self._status_index: int | None = None  # counted from the end of the data
         self._status_raw_ok = True
         self._msg_cls = Float64MultiArray
-        os.environ.update(isolated_env(domain_id))  # localhost discovery for this process too
+        isolate_this_process(domain_id)  # localhost discovery for this process too
         self.context = Context()
         # No rclpy signal handlers: Ctrl-C must reach the benchmark as KeyboardInterrupt.
         rclpy.init(context=self.context, domain_id=domain_id,
