@@ -32,12 +32,12 @@ setup(
     entry_points={
         "console_scripts": [
             "plant = cr_sim.plant_node:main",
-            "recorder = cr_control.recorder:main",
-            "cr_session = cr_control.session:main",
-            "cr_analyze = cr_control.analysis:main",
-            "cr_benchmark = cr_control.benchmark:main",
-            "cr_param = cr_control.param_tool:main",
+            "recorder = cr_control.recording.recorder:main",
+            "cr_session = cr_control.tools.session:main",
+            "cr_analyze = cr_control.analysis.analyze:main",
+            "cr_benchmark = cr_control.tools.benchmark:main",
+            "cr_param = cr_control.tools.param_tool:main",
         ]
-        + [f"{name} = cr_control.controller_node:main_{name}" for name in SCHEMES],
+        + [f"{name} = cr_control.nodes.controller_node:main_{name}" for name in SCHEMES],
     },
 )

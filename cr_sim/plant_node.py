@@ -26,13 +26,13 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension
 
-from cr_control import topics
-from cr_control.parameters import Param
-from cr_control.qos import CONTROL_QOS, READY_QOS
-from cr_control.ros_parameters import ParameterError, declare
-from cr_control.spin import spin_nodes
+from cr_control.core import topics
+from cr_control.core.parameters import Param
+from cr_control.nodes.qos import CONTROL_QOS, READY_QOS
+from cr_control.nodes.ros_parameters import ParameterError, declare
+from cr_control.nodes.spin import spin_nodes
 from cr_sim.loop_stats import LoopStats
-from cr_sim.scenarios import SCENARIOS
+from cr_sim.plants.registry import SCENARIOS
 
 NODE_PARAMETERS = [
     Param("mode", "realtime", "realtime: wall-clock timer; lockstep: step on each command.",

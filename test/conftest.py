@@ -5,7 +5,7 @@ import os
 import pytest
 from ros_probe import next_domain
 
-from cr_control.ros_env import FIRST_DOMAIN, isolated_env
+from cr_control.core.ros_env import FIRST_DOMAIN, isolated_env
 
 # Tests that call rclpy.init in this process inherit these.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

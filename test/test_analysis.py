@@ -15,8 +15,9 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from cr_control import analysis, topics
-from cr_control.recorder import McapBagWriter
+from cr_control.analysis import analyze as analysis
+from cr_control.core import topics
+from cr_control.recording.recorder import McapBagWriter
 
 REPO = Path(__file__).resolve().parents[1]
 DT = 0.01
@@ -296,7 +297,7 @@ def test_cli_user_errors_exit_2_with_a_clear_message(tmp_path, capsys):
 
 def test_cli_process_exit_code_without_traceback(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-m", "cr_control.analysis", str(tmp_path / "missing.mcap")],
+        [sys.executable, "-m", "cr_control.analysis.analyze", str(tmp_path / "missing.mcap")],
         capture_output=True, text=True, timeout=120, cwd=REPO)
     assert result.returncode == 2
     assert "no such file" in result.stderr and "Traceback" not in result.stderr

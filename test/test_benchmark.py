@@ -10,10 +10,10 @@ import sys
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from cr_control import benchmark as bm
-from cr_control import topics
-from cr_control.echo_pair import parse_result
-from cr_control.ros_env import DOMAIN_SPAN, FIRST_DOMAIN
+from cr_control.core import topics
+from cr_control.core.ros_env import DOMAIN_SPAN, FIRST_DOMAIN
+from cr_control.tools import benchmark as bm
+from cr_control.tools.echo_pair import parse_result
 
 # /proc/<pid>/stat of a process whose name holds a space and a parenthesis.
 STAT = ("4242 (python (x) 3) S 1 4242 4242 0 -1 4194560 5000 0 0 0 "
@@ -122,7 +122,7 @@ def test_json_safe_and_domain_ids():
 
 
 def test_echo_pair_one_process_produces_cycles(ros_env):
-    proc = subprocess.run([sys.executable, "-m", "cr_control.echo_pair", "both", "--duration", "1"],
+    proc = subprocess.run([sys.executable, "-m", "cr_control.tools.echo_pair", "both", "--duration", "1"],
                           env=ros_env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     result = parse_result(proc.stdout)

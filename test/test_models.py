@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from cr_control.task_space import ArmTaskSpace, inverse_2x2
-from cr_sim.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
-from cr_sim.compliant_plane_arm import PARAMETERS, CompliantPlane
-from cr_sim.scenarios import make_plant
+from cr_control.schemes.task_space import ArmTaskSpace, inverse_2x2
+from cr_sim.models.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
+from cr_sim.plants.compliant_plane import PARAMETERS, CompliantPlane
+from cr_sim.plants.registry import make_plant
 
 RNG = np.random.default_rng(7)
 SAMPLES = [(RNG.uniform(-np.pi, np.pi, 2), RNG.uniform(-2, 2, 2)) for _ in range(20)]

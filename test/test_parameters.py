@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import yaml
 
-from cr_control.config_files import params_yaml, plant_yaml
-from cr_control.parameters import Param, ParameterError, resolve, validate
-from cr_control.paths import config_file
-from cr_control.schemes import SCHEMES, controller_class
+from cr_control.core.parameters import Param, ParameterError, resolve, validate
+from cr_control.core.paths import config_file
+from cr_control.schemes.registry import SCHEMES, controller_class
+from cr_control.tools.config_files import params_yaml, plant_yaml
 
 GAIN = Param("Q", [5.0, 5.0], "a positive definite gain", "spd", 2)
 NEG = Param("D", [-2.0, -2.0], "a negative definite matrix", "nd", 2)

@@ -26,7 +26,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension
 
-from cr_control import topics
+from cr_control.core import topics
 
 REPO = Path(__file__).resolve().parents[1]
 WAIT_S = 30.0  # bound on every wait; a healthy run needs a few seconds in all
@@ -112,7 +112,7 @@ def run_session(tmp_path: Path, ros_env: dict[str, str], sig: int, n: int,
     proc = None
     try:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "cr_control.recorder", "--ros-args",
+            [sys.executable, "-m", "cr_control.recording.recorder", "--ros-args",
              "-p", f"output:={output}",
              "-p", f"topics:=[{', '.join(RECORDED + list(extra_topics))}]",
              "-p", f"ready_timeout:={ready_timeout}"],

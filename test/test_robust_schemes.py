@@ -19,15 +19,15 @@ import pinocchio
 import pytest
 import yaml
 
-from cr_control.config_files import params_yaml
-from cr_control.offline import OfflineRun, run_scheme
-from cr_control.parameters import resolve
-from cr_control.robust_adaptive_impedance import RobustAdaptiveImpedanceController
-from cr_control.schemes import SCHEMES, controller_class, make_controller
-from cr_control.sliding_impedance import SlidingCompensator, boundary_layer_sign
-from cr_control.task_space import ArmTaskSpace, inverse_2x2
-from cr_sim.arm_model import TwoLinkArm
-from cr_sim.scenarios import make_plant
+from cr_control.core.parameters import resolve
+from cr_control.schemes.registry import SCHEMES, controller_class, make_controller
+from cr_control.schemes.robust_adaptive_impedance import RobustAdaptiveImpedanceController
+from cr_control.schemes.sliding_impedance import SlidingCompensator, boundary_layer_sign
+from cr_control.schemes.task_space import ArmTaskSpace, inverse_2x2
+from cr_control.tools.config_files import params_yaml
+from cr_control.tools.offline import OfflineRun, run_scheme
+from cr_sim.models.arm_model import TwoLinkArm
+from cr_sim.plants.registry import make_plant
 
 DELTA = 0.05  # boundary layer of both schemes (3.5.2, 3.5.3)
 E0 = 0.1 / np.sqrt(2.0)  # |e(0)|: r_d(0) is 7.07 cm from the start point on the surface

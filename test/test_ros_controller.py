@@ -14,8 +14,8 @@ from ros_probe import RosProbe, next_domain
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from cr_control import topics
-from cr_control.ros_env import isolated_env
+from cr_control.core import topics
+from cr_control.core.ros_env import isolated_env
 
 NODE = "adaptive_impedance"
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -25,7 +25,7 @@ QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 def controller():
     domain = next_domain()
     env = isolated_env(domain_id=domain)
-    proc = subprocess.Popen([sys.executable, "-m", "cr_control.controller_node", NODE],
+    proc = subprocess.Popen([sys.executable, "-m", "cr_control.nodes.controller_node", NODE],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     probe = RosProbe(domain)
     commands, status = [], []
@@ -129,7 +129,7 @@ def test_bad_joint_states_never_give_a_non_finite_command(controller, position, 
 def test_bad_params_file_stops_the_node_with_a_reason(tmp_path, ros_env):
     bad = tmp_path / "bad.yaml"
     bad.write_text(f"{NODE}:\n  ros__parameters:\n    B_m: [400.0, -1.0]\n")
-    proc = subprocess.run([sys.executable, "-m", "cr_control.controller_node", NODE, "--ros-args",
+    proc = subprocess.run([sys.executable, "-m", "cr_control.nodes.controller_node", NODE, "--ros-args",
                            "--params-file", str(bad)], env=ros_env, capture_output=True, text=True,
                           timeout=60)
     assert proc.returncode == 1
@@ -137,7 +137,7 @@ def test_bad_params_file_stops_the_node_with_a_reason(tmp_path, ros_env):
 
 
 def test_unknown_scheme_is_a_usage_error(ros_env):
-    proc = subprocess.run([sys.executable, "-m", "cr_control.controller_node", "nope"], env=ros_env,
+    proc = subprocess.run([sys.executable, "-m", "cr_control.nodes.controller_node", "nope"], env=ros_env,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "schemes:" in proc.stderr
 
@@ -147,7 +147,7 @@ def test_cr_param_sets_refuses_and_gets(controller):
     domain = controller[0].context.get_domain_id()
 
     def cr_param(*args):
-        return subprocess.run([sys.executable, "-m", "cr_control.param_tool", "--domain-id",
+        return subprocess.run([sys.executable, "-m", "cr_control.tools.param_tool", "--domain-id",
                                str(domain), *args], capture_output=True, text=True, timeout=60)
 
     ok = cr_param("set", NODE, "Q_b", "[7, 7]")             # integers coerced to doubles

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from ros_probe import next_domain
 
-from cr_control.analysis import load_session, metrics
-from cr_control.offline import run_scheme
-from cr_control.session import Session, SessionConfig
+from cr_control.analysis.analyze import load_session, metrics
+from cr_control.tools.offline import run_scheme
+from cr_control.tools.session import Session, SessionConfig
 
 DURATION = 10.0
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-_SOURCE_CONFIG = Path(__file__).resolve().parent.parent / "config"
+_SOURCE_CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 
 def config_dir() -> Path:

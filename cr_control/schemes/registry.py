@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from cr_control.adaptive_impedance import AdaptiveImpedanceController
-from cr_control.controller import Controller
-from cr_control.nn_adaptive_impedance import NNAdaptiveImpedanceController
-from cr_control.parameters import resolve
-from cr_control.robust_adaptive_impedance import RobustAdaptiveImpedanceController
+from cr_control.core.parameters import resolve
+from cr_control.schemes.adaptive_impedance import AdaptiveImpedanceController
+from cr_control.schemes.controller import Controller
+from cr_control.schemes.nn_adaptive_impedance import NNAdaptiveImpedanceController
+from cr_control.schemes.robust_adaptive_impedance import RobustAdaptiveImpedanceController
 
 #: scheme name -> (controller class, default plant scenario)
 SCHEMES: dict[str, tuple[type[Controller], str]] = {

@@ -2,7 +2,7 @@
 
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from cr_control import topics
+from cr_control.core import topics
 
 #: The 1 kHz loop topics: RELIABLE, KEEP_LAST topics.QOS_DEPTH.
 CONTROL_QOS = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)

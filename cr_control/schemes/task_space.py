@@ -11,9 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from cr_control.parameters import Param
-from cr_control.references import CHAPTER3_REFERENCE, chapter3_reference
-from cr_sim.arm_model import LinkParameters, TwoLinkArm
+from cr_control.core.parameters import Param
+from cr_control.schemes.references import CHAPTER3_REFERENCE, chapter3_reference
+from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
 
 #: The controller's model of the arm (thesis values; the robust schemes use wrong ones).
 ARM_MODEL_PARAMETERS = [

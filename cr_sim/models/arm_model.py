@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from cr_control.paths import config_file
+from cr_control.core.paths import config_file
 
 URDF_NAME = "two_link_arm.urdf"
 TOOL_FRAME = "tool0"

@@ -17,7 +17,7 @@ import time
 
 import yaml
 
-from cr_control.ros_env import isolate_this_process
+from cr_control.core.ros_env import isolate_this_process
 
 TIMEOUT_S = 10.0
 

@@ -12,9 +12,9 @@ The source publishes the plant's labelled timing report on /plant/timing every s
 logs the plant's per-second line and "done:" line, and prints one final JSON line
 (prefix ``ECHO_RESULT``) with the whole-run figures.
 
-    python -m cr_control.echo_pair both --duration 10        # one process
-    python -m cr_control.echo_pair echo &                     # two processes
-    python -m cr_control.echo_pair source --duration 10
+    python -m cr_control.tools.echo_pair both --duration 10        # one process
+    python -m cr_control.tools.echo_pair echo &                     # two processes
+    python -m cr_control.tools.echo_pair source --duration 10
 """
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from cr_control import topics
-from cr_control.qos import CONTROL_QOS
-from cr_control.ros_env import isolate_this_process
-from cr_control.spin import spin_nodes
+from cr_control.core import topics
+from cr_control.core.ros_env import isolate_this_process
+from cr_control.nodes.qos import CONTROL_QOS
+from cr_control.nodes.spin import spin_nodes
 from cr_sim.loop_stats import LoopStats
 
 JOINT_NAMES = ["joint1", "joint2"]

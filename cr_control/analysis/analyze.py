@@ -37,7 +37,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
-from cr_control import topics
+from cr_control.core import topics
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: What the MCAP readers raise on damaged or truncated data.

@@ -48,10 +48,10 @@ from abc import abstractmethod
 
 import numpy as np
 
-from cr_control.adaptive_impedance import ImpedanceAdaptation, task_space_status
-from cr_control.controller import Controller, ControlOutput
-from cr_control.parameters import Param, matrix
-from cr_control.task_space import ArmTaskSpace, TaskState, inverse_2x2
+from cr_control.core.parameters import Param, matrix
+from cr_control.schemes.adaptive_impedance import ImpedanceAdaptation, task_space_status
+from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.task_space import ArmTaskSpace, TaskState, inverse_2x2
 
 #: Status fields of the sliding-mode part, before the scheme's own and ESTIMATE_FIELDS.
 SLIDING_STATUS_FIELDS = ["s_x", "s_y", "z_x", "z_y", "d"]

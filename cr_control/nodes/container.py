@@ -4,7 +4,7 @@ Like a ROS 2 component container: the same node classes as the separate executab
 sharing one EventsExecutor, for the lowest state -> command latency. The process ends
 when the plant finishes its ``duration``.
 
-    python -m cr_control.container SCHEME [--ros-args --params-file FILE ...]
+    python -m cr_control.nodes.container SCHEME [--ros-args --params-file FILE ...]
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import sys
 
 import rclpy
 
-from cr_control.controller_node import ControllerNode
-from cr_control.ros_parameters import ParameterError
-from cr_control.schemes import SCHEMES
-from cr_control.spin import spin_nodes
+from cr_control.nodes.controller_node import ControllerNode
+from cr_control.nodes.ros_parameters import ParameterError
+from cr_control.nodes.spin import spin_nodes
+from cr_control.schemes.registry import SCHEMES
 from cr_sim.plant_node import PlantNode
 
 

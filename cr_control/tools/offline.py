@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from cr_control.controller import Controller
-from cr_control.schemes import default_scenario, make_controller
-from cr_sim.plant import Plant
-from cr_sim.scenarios import make_plant
+from cr_control.schemes.controller import Controller
+from cr_control.schemes.registry import default_scenario, make_controller
+from cr_sim.plants.base import Plant
+from cr_sim.plants.registry import make_plant
 
 
 @dataclass

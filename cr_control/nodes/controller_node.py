@@ -18,11 +18,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from cr_control import topics
-from cr_control.qos import CONTROL_QOS
-from cr_control.ros_parameters import ParameterError, declare, police_changes
-from cr_control.schemes import SCHEMES, controller_class
-from cr_control.spin import spin_nodes
+from cr_control.core import topics
+from cr_control.nodes.qos import CONTROL_QOS
+from cr_control.nodes.ros_parameters import ParameterError, declare, police_changes
+from cr_control.nodes.spin import spin_nodes
+from cr_control.schemes.registry import SCHEMES, controller_class
 
 
 def stamp_seconds(stamp) -> float:

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from cr_control.parameters import Param
-from cr_control.topics import REFERENCE_FIELDS, STATUS_FIELDS
+from cr_control.core.parameters import Param
+from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 
 #: Parameters of every controller node.
 COMMON_PARAMETERS = [

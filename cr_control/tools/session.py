@@ -24,10 +24,10 @@ from typing import Any
 
 import yaml
 
-from cr_control import topics
-from cr_control.paths import config_file
-from cr_control.ros_env import isolated_env
-from cr_control.schemes import SCHEMES, default_scenario
+from cr_control.core import topics
+from cr_control.core.paths import config_file
+from cr_control.core.ros_env import isolated_env
+from cr_control.schemes.registry import SCHEMES, default_scenario
 
 STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 15.0
@@ -218,11 +218,11 @@ class Session:
         main = "container" if cfg.composed else "plant"
         try:
             if cfg.record:
-                self._start("recorder", "cr_control.recorder")
+                self._start("recorder", "cr_control.recording.recorder")
             if cfg.composed:
-                self._start(main, "cr_control.container", cfg.scheme)
+                self._start(main, "cr_control.nodes.container", cfg.scheme)
             else:
-                self._start(cfg.scheme, "cr_control.controller_node", cfg.scheme)
+                self._start(cfg.scheme, "cr_control.nodes.controller_node", cfg.scheme)
                 self._start(main, "cr_sim.plant_node")
             budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
             self.group.wait(main, budget, "] [plant]: t=")
@@ -237,7 +237,7 @@ class Session:
 
 def analyse(result: SessionResult, progress=print) -> None:
     """Print the session's metrics and write its plots next to the recording."""
-    from cr_control.analysis import format_metrics, load_session, metrics, plot_session
+    from cr_control.analysis.analyze import format_metrics, load_session, metrics, plot_session
 
     session = load_session(result.mcap)
     progress(format_metrics([(session.controller or result.directory.name, metrics(session))]))

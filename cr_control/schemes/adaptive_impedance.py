@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from cr_control.controller import Controller, ControlOutput
-from cr_control.parameters import Param, matrix
-from cr_control.task_space import TASK_SPACE_PARAMETERS, ArmTaskSpace
+from cr_control.core.parameters import Param, matrix
+from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.task_space import TASK_SPACE_PARAMETERS, ArmTaskSpace
 
 ESTIMATE_FIELDS = [
     "A_hat_11", "A_hat_12", "A_hat_21", "A_hat_22",

@@ -73,8 +73,8 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from std_msgs.msg import Bool
 
-from cr_control import topics
-from cr_control.qos import READY_QOS
+from cr_control.core import topics
+from cr_control.nodes.qos import READY_QOS
 
 DEFAULT_TOPICS = [
     topics.JOINT_STATES,

@@ -17,10 +17,10 @@ import math
 import numpy as np
 import pinocchio as pin
 
-from cr_control.parameters import Param, ParameterError
-from cr_sim.arm_model import LinkParameters, TwoLinkArm
+from cr_control.core.parameters import Param, ParameterError
 from cr_sim.integrators import integrate
-from cr_sim.plant import Measurement, Plant
+from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
+from cr_sim.plants.base import Measurement, Plant
 
 NAME = "compliant_plane"
 

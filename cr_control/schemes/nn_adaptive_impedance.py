@@ -11,7 +11,7 @@ Every element of the task-space dynamics (3.2) is approximated by a Gaussian RBF
     theta_Gk'  = Gamma_G xi(q) s_k                                                   (3.81)
 
 Compensator, s, r_eq, boundary layer and impedance adaptation (3.82-3.85): as in
-:mod:`cr_control.sliding_impedance`. All elements share one activation vector per input
+:mod:`cr_control.schemes.sliding_impedance`. All elements share one activation vector per input
 (the centres are the same), so the networks are weight matrices (nodes x elements),
 evaluated and updated with one matrix product each. Initial weights are zero. The weights
 are integrated with the dt of each cycle (the update uses this cycle's s, then the
@@ -42,10 +42,14 @@ import math
 
 import numpy as np
 
-from cr_control.adaptive_impedance import ESTIMATE_FIELDS, impedance_parameters
-from cr_control.parameters import Param, ParameterError
-from cr_control.sliding_impedance import SLIDING_STATUS_FIELDS, SlidingImpedanceController, sliding_parameters
-from cr_control.task_space import TASK_SPACE_PARAMETERS, TaskState, inverse_2x2
+from cr_control.core.parameters import Param, ParameterError
+from cr_control.schemes.adaptive_impedance import ESTIMATE_FIELDS, impedance_parameters
+from cr_control.schemes.sliding_impedance import (
+    SLIDING_STATUS_FIELDS,
+    SlidingImpedanceController,
+    sliding_parameters,
+)
+from cr_control.schemes.task_space import TASK_SPACE_PARAMETERS, TaskState, inverse_2x2
 
 NN_STATUS_FIELDS = ["M_r_norm", "M_r_hat_norm", "C_r_norm", "C_r_hat_norm", "G_r_norm",
                     "G_r_hat_norm"]

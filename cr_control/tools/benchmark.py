@@ -4,7 +4,7 @@ Runs, one after another, each on a ROS_DOMAIN_ID of its own (localhost discovery
 
 1. a real-time session (plant + ``adaptive_impedance`` controller) across processes,
 2. the same session composed (plant and controller in one process),
-3. the bare echo pair (:mod:`cr_control.echo_pair`, same messages, QoS and executor,
+3. the bare echo pair (:mod:`cr_control.tools.echo_pair`, same messages, QoS and executor,
    no math) across processes and in one process, as the baseline of each layout,
 4. lockstep sessions (across processes and composed) and the offline loop (no ROS):
    how many times faster than real time the same plant and controller run.
@@ -40,10 +40,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cr_control import topics
-from cr_control.echo_pair import parse_result
-from cr_control.ros_env import DOMAIN_SPAN, FIRST_DOMAIN, free_domain_id, isolate_this_process, isolated_env
-from cr_control.session import STARTUP_TIMEOUT_S, ProcessGroup, Session, SessionConfig, SessionError
+from cr_control.core import topics
+from cr_control.core.ros_env import (
+    DOMAIN_SPAN,
+    FIRST_DOMAIN,
+    free_domain_id,
+    isolate_this_process,
+    isolated_env,
+)
+from cr_control.tools.echo_pair import parse_result
+from cr_control.tools.session import STARTUP_TIMEOUT_S, ProcessGroup, Session, SessionConfig, SessionError
 
 SCHEME = "adaptive_impedance"
 #: CPU used by other processes (% of one core) above which a run is flagged as disturbed.
@@ -277,7 +283,7 @@ class Listener:
         from rclpy.task import Future
         from std_msgs.msg import Float64MultiArray
 
-        from cr_control.qos import CONTROL_QOS
+        from cr_control.nodes.qos import CONTROL_QOS
 
         self._rclpy = rclpy
         self.pids = pids
@@ -446,7 +452,7 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
     group = ProcessGroup(logs, env, progress)
 
     def start(name: str, role: str) -> None:
-        group.start(name, [sys.executable, "-m", "cr_control.echo_pair", role,
+        group.start(name, [sys.executable, "-m", "cr_control.tools.echo_pair", role,
                            "--duration", str(duration), "--rate", str(rate_hz)])
 
     fig: dict[str, Any] = {"domain_id": domain, "logs": str(logs)}
@@ -481,7 +487,7 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
 def run_offline(duration: float, progress: Progress) -> dict[str, Any]:
     """Wall time of the offline loop (no ROS) for ``duration`` simulated seconds."""
     progress.begin("offline loop")
-    from cr_control.offline import run_scheme
+    from cr_control.tools.offline import run_scheme
 
     t0, cpu0, machine0 = time.perf_counter(), time.process_time(), read_machine_ticks()
     result = run_scheme(SCHEME, duration)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from cr_control.parameters import Param
+from cr_control.core.parameters import Param
 
 
 class CosineTrajectory:

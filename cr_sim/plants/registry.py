@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from cr_control.parameters import Param, resolve
-from cr_sim import compliant_plane_arm
-from cr_sim.plant import Plant
+from cr_control.core.parameters import Param, resolve
+from cr_sim.plants import compliant_plane as compliant_plane_arm
+from cr_sim.plants.base import Plant
 
 #: scenario name -> (parameters, factory taking the converted parameter values)
 SCENARIOS: dict[str, tuple[list[Param], Callable[[dict], Plant]]] = {

@@ -1,4 +1,4 @@
-"""Declare :class:`~cr_control.parameters.Param` specs on an rclpy node and police changes.
+"""Declare :class:`~cr_control.core.parameters.Param` specs on an rclpy node and police changes.
 
 Modelled on ros2_controllers' generated parameter handling: every parameter declared
 with its type, description and read-only flag; values from a params file checked at
@@ -15,7 +15,14 @@ from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from cr_control.parameters import MATRIX_KINDS, SCALAR_KINDS, VECTOR_KINDS, Param, ParameterError, validate
+from cr_control.core.parameters import (
+    MATRIX_KINDS,
+    SCALAR_KINDS,
+    VECTOR_KINDS,
+    Param,
+    ParameterError,
+    validate,
+)
 
 _ROS_TYPES = {
     **dict.fromkeys(SCALAR_KINDS, ParameterType.PARAMETER_DOUBLE),
