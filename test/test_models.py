@@ -5,7 +5,8 @@ import pytest
 
 from cr_control.schemes.task_space import ArmTaskSpace, inverse_2x2
 from cr_sim.models.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
-from cr_sim.plants.compliant_plane import PARAMETERS, CompliantPlane
+from cr_sim.models.surfaces import circle, contact_force, plane
+from cr_sim.plants.compliant_plane import PARAMETERS
 from cr_sim.plants.registry import make_plant
 
 RNG = np.random.default_rng(7)
@@ -74,14 +75,26 @@ def test_inverse_kinematics_round_trip_on_the_printed_branch(arm):
 
 
 def test_plane_pushes_only_when_penetrated_and_never_pulls():
-    plane = CompliantPlane(np.array([1.0, -1.0]), 0.25, 150.0, 20.0)
+    surface = plane(np.array([1.0, -1.0]), 0.25, 150.0, 20.0)
     outside = np.array([0.0, 0.2])           # x - y + 0.25 > 0: free space
     inside = np.array([-0.05, 0.25])         # 0.05/sqrt(2) m deep
-    assert np.all(plane.force(outside, np.zeros(2)) == 0)
-    f = plane.force(inside, np.zeros(2))
+    assert np.all(contact_force(surface, outside, np.zeros(2)) == 0)
+    f = contact_force(surface, inside, np.zeros(2))
     assert np.allclose(f, 150 * 0.05 / np.sqrt(2) * np.array([1, -1]) / np.sqrt(2))
     leaving_fast = np.array([10.0, -10.0])   # damping would pull: clipped to zero
-    assert np.all(plane.force(inside, leaving_fast) == 0)
+    assert np.all(contact_force(surface, inside, leaving_fast) == 0)
+    with pytest.raises(ValueError, match="zero"):
+        plane(np.zeros(2), 0.25, 150.0, 0.0)
+
+
+def test_circle_pushes_outward_from_its_centre_only_when_penetrated():
+    surface = circle([0.8, -0.4], 0.3, 1000.0, 0.0)
+    assert np.all(contact_force(surface, np.array([0.8, -0.05]), np.zeros(2)) == 0)  # 5 cm out
+    f = contact_force(surface, np.array([0.8, -0.11]), np.zeros(2))                   # 1 cm in
+    assert np.allclose(f, [0.0, 10.0])
+    f = contact_force(surface, np.array([0.8 + 0.29 / np.sqrt(2), -0.4 - 0.29 / np.sqrt(2)]),
+                      np.zeros(2))
+    assert np.allclose(f, 10.0 * np.array([1.0, -1.0]) / np.sqrt(2))
 
 
 def test_plant_starts_at_rest_touching_with_zero_force():

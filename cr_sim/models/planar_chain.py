@@ -1,0 +1,249 @@
+"""Compiled rigid-body dynamics of a planar serial chain of revolute joints (the thesis arms).
+
+The hot path of the 1 kHz loop cannot afford a Python-level call per Pinocchio
+algorithm (~40 interpreter loop iterations each, four RK4 stages, several algorithms per
+stage). The arms of chapters 2, 3, 5 and 6 are planar chains, so their dynamics is
+compiled here once (numba, cached on disk) from the parameters of the **Pinocchio model
+built from the URDF**: :meth:`PlanarChain.from_model` reads the joint placements, link
+inertias, tool frame and gravity out of that model, and the tests check every quantity
+against Pinocchio (ABA, RNEA, CRBA, frame Jacobian and its time variation) to 1e-12 and
+against the thesis's closed forms (2.103), (6.117). Any number of links.
+
+Notation: joint i turns about +z at p_i; absolute link angle phi_i = q_1 + ... + q_i;
+link i carries joint i+1 at p_{i+1} = p_i + R(phi_i) a_i and its centre of mass at
+p_i + R(phi_i) rho_i (mass m_i, inertia I_i about the centre of mass); the tool sits at
+p_n + R(phi_n) t. Gravity g is a vector in the plane ((0, -9.8) in the thesis).
+
+The packed parameter vector ``chain`` (float64) is laid out as
+    [n, g_x, g_y, t_x, t_y, then per link: a_x, a_y, rho_x, rho_y, m, I]
+so one array carries the whole model into a kernel.
+
+Kernels (all take ``chain`` first):
+    rnea(chain, q, v, a, gravity_on) -> tau   recursive Newton-Euler, tau = M a + C v + G
+    mass_matrix(chain, q) -> M                 from n RNEA passes (v = 0, no gravity)
+    forward_dynamics(chain, q, v, tau) -> q''  M q'' = tau - (C v + G), Cholesky
+    tool_kinematics(chain, q, v) -> (r, J, J' v)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+from numba import njit
+
+HEADER = 5   # n, g_x, g_y, t_x, t_y
+PER_LINK = 6  # a_x, a_y, rho_x, rho_y, m, I
+
+
+@njit(cache=True)
+def _link(chain, i):
+    k = HEADER + PER_LINK * i
+    return chain[k], chain[k + 1], chain[k + 2], chain[k + 3], chain[k + 4], chain[k + 5]
+
+
+@njit(cache=True)
+def _rnea_into(chain, q, v, a, gravity_on, scratch, tau):
+    """tau = M(q) a + C(q, v) v + G(q) (G only if ``gravity_on``): 2-D recursive Newton-Euler.
+
+    Forward pass: angular rate w_i, acceleration al_i and the linear acceleration of the joint
+    origins (a base acceleration of -g carries gravity); backward pass: the force f and moment
+    n that link i+1 exerts on link i. ``scratch`` holds >= 8 n floats (no allocation here).
+    """
+    n = int(chain[0])
+    al, acx, acy = scratch[:n], scratch[n:2 * n], scratch[2 * n:3 * n]
+    cx, cy, ex, ey = scratch[3 * n:4 * n], scratch[4 * n:5 * n], scratch[5 * n:6 * n], scratch[6 * n:7 * n]
+    ax = -chain[1] if gravity_on else 0.0
+    ay = -chain[2] if gravity_on else 0.0
+    phi = wi = ali = 0.0
+    for i in range(n):
+        k = HEADER + PER_LINK * i
+        phi += q[i]
+        wi += v[i]
+        ali += a[i]
+        c, s = math.cos(phi), math.sin(phi)
+        al[i] = ali
+        cx[i], cy[i] = c * chain[k + 2] - s * chain[k + 3], s * chain[k + 2] + c * chain[k + 3]
+        ex[i], ey[i] = c * chain[k] - s * chain[k + 1], s * chain[k] + c * chain[k + 1]
+        w2 = wi * wi
+        acx[i] = ax - ali * cy[i] - w2 * cx[i]
+        acy[i] = ay + ali * cx[i] - w2 * cy[i]
+        ax, ay = ax - ali * ey[i] - w2 * ex[i], ay + ali * ex[i] - w2 * ey[i]
+    fx = fy = nz = 0.0
+    for i in range(n - 1, -1, -1):
+        k = HEADER + PER_LINK * i
+        mfx, mfy = chain[k + 4] * acx[i], chain[k + 4] * acy[i]
+        # moment about joint i: I al + rho x m a_c + a_i x f_{i+1} + n_{i+1}
+        nz = chain[k + 5] * al[i] + cx[i] * mfy - cy[i] * mfx + ex[i] * fy - ey[i] * fx + nz
+        fx, fy = mfx + fx, mfy + fy
+        tau[i] = nz
+
+
+@njit(cache=True)
+def rnea(chain, q, v, a, gravity_on):
+    """tau = M(q) a + C(q, v) v + G(q) (G only if ``gravity_on``)."""
+    n = int(chain[0])
+    tau = np.empty(n)
+    _rnea_into(chain, q, v, a, gravity_on, np.empty(8 * n), tau)
+    return tau
+
+
+@njit(cache=True)
+def _mass_matrix_into(chain, q, scratch, M):
+    """M(q) = sum_k m_k J_ck^T J_ck + I_k a_k a_k^T, with the centre-of-mass Jacobian columns
+    dc_k/dq_i = perp(c_k - p_i) for i <= k (planar revolute chain); scratch >= 4 n floats."""
+    n = int(chain[0])
+    px, py, cx, cy = scratch[:n], scratch[n:2 * n], scratch[2 * n:3 * n], scratch[3 * n:4 * n]
+    x = y = phi = 0.0
+    for i in range(n):
+        k = HEADER + PER_LINK * i
+        px[i], py[i] = x, y
+        phi += q[i]
+        c, s = math.cos(phi), math.sin(phi)
+        cx[i] = x + c * chain[k + 2] - s * chain[k + 3]
+        cy[i] = y + s * chain[k + 2] + c * chain[k + 3]
+        x, y = x + c * chain[k] - s * chain[k + 1], y + s * chain[k] + c * chain[k + 1]
+    for i in range(n):
+        for j in range(i + 1):
+            total = 0.0
+            for k in range(i, n):
+                base = HEADER + PER_LINK * k
+                total += (chain[base + 4] * ((cx[k] - px[i]) * (cx[k] - px[j])
+                                             + (cy[k] - py[i]) * (cy[k] - py[j]))
+                          + chain[base + 5])
+            M[i, j] = total
+            M[j, i] = total
+
+
+@njit(cache=True)
+def mass_matrix(chain, q):
+    """M(q), symmetric positive definite."""
+    n = int(chain[0])
+    M = np.empty((n, n))
+    _mass_matrix_into(chain, q, np.empty(4 * n), M)
+    return M
+
+
+@njit(cache=True)
+def _solve_spd_into(M, b, x):
+    """x with M x = b for a symmetric positive-definite M: Cholesky in place (M is overwritten
+    by its factor L in the lower triangle), no pivoting, no allocation."""
+    n = b.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            s = M[i, j]
+            for k in range(j):
+                s -= M[i, k] * M[j, k]
+            M[i, j] = math.sqrt(s) if i == j else s / M[j, j]
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= M[i, k] * x[k]
+        x[i] = s / M[i, i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= M[k, i] * x[k]
+        x[i] = s / M[i, i]
+
+
+@njit(cache=True)
+def solve_spd(M, b):
+    """x with M x = b for a symmetric positive-definite M (M is left unchanged)."""
+    x = np.empty(b.shape[0])
+    _solve_spd_into(M.copy(), b, x)
+    return x
+
+
+@njit(cache=True)
+def forward_dynamics(chain, q, v, tau):
+    """q'' from M q'' + C q' + G = tau (one RNEA for C q' + G, the mass matrix from the
+    centre-of-mass Jacobians, Cholesky): one allocation for the scratch, one for q''."""
+    n = int(chain[0])
+    scratch = np.empty(10 * n + n * n)
+    h = scratch[8 * n:9 * n]
+    zero = scratch[9 * n:10 * n]
+    zero[:] = 0.0
+    _rnea_into(chain, q, v, zero, True, scratch, h)
+    rhs = scratch[9 * n:10 * n]
+    for i in range(n):
+        rhs[i] = tau[i] - h[i]
+    M = scratch[10 * n:].reshape((n, n))
+    _mass_matrix_into(chain, q, scratch, M)
+    qdd = np.empty(n)
+    _solve_spd_into(M, rhs, qdd)
+    return qdd
+
+
+@njit(cache=True)
+def tool_kinematics(chain, q, v):
+    """Tool position r, Jacobian J (2 x n, r' = J q', column j = perp(r - p_j)) and
+    J'(q, q') q' (the tool's acceleration at q'' = 0: a_{i+1} = a_i - w_i^2 e_i)."""
+    n = int(chain[0])
+    J = np.empty((2, n))
+    out = np.empty(4)   # r, J' q'
+    x = y = phi = wi = ax = ay = 0.0
+    for i in range(n):
+        k = HEADER + PER_LINK * i
+        J[0, i], J[1, i] = x, y   # joint origins for now
+        phi += q[i]
+        wi += v[i]
+        c, s = math.cos(phi), math.sin(phi)
+        lx, ly = (chain[3], chain[4]) if i == n - 1 else (chain[k], chain[k + 1])
+        ex, ey = c * lx - s * ly, s * lx + c * ly
+        ax, ay = ax - wi * wi * ex, ay - wi * wi * ey
+        x, y = x + ex, y + ey
+    for j in range(n):
+        px, py = J[0, j], J[1, j]
+        J[0, j], J[1, j] = -(y - py), x - px
+    out[0], out[1], out[2], out[3] = x, y, ax, ay
+    return out[:2], J, out[2:]
+
+
+@njit(cache=True)
+def matvec(A, x):
+    """A x for small matrices (numba's @ needs SciPy's BLAS; these sizes do not)."""
+    rows, cols = A.shape
+    out = np.zeros(rows)
+    for i in range(rows):
+        s = 0.0
+        for j in range(cols):
+            s += A[i, j] * x[j]
+        out[i] = s
+    return out
+
+
+@dataclass(frozen=True)
+class PlanarChain:
+    """A planar revolute chain read from a Pinocchio model; ``chain`` is its packed form."""
+
+    chain: np.ndarray
+    joint_names: tuple[str, ...]
+
+    @classmethod
+    def from_model(cls, model: pin.Model, tool_frame: str) -> PlanarChain:
+        """Pack ``model`` (revolute joints about z, placements in the x-y plane, gravity in
+        the plane, ``tool_frame`` fixed to the last link); ValueError if it is not such a chain."""
+        n = model.njoints - 1
+        g = model.gravity.linear
+        tool = model.frames[model.getFrameId(tool_frame)]
+        if tool.parentJoint != n:
+            raise ValueError(f"{tool_frame} is not attached to the last joint")
+        t = tool.placement.translation
+        values = [float(n), g[0], g[1], t[0], t[1]]
+        for j in range(1, n + 1):
+            joint = model.joints[j]
+            if joint.shortname() != "JointModelRZ" or model.parents[j] != j - 1:
+                raise ValueError(f"joint {model.names[j]} is not a revolute z joint of a serial chain")
+            placement = model.jointPlacements[j]
+            if not np.allclose(placement.rotation, np.eye(3)) or abs(placement.translation[2]) > 0:
+                raise ValueError(f"joint {model.names[j]} is not placed in the x-y plane")
+            a = model.jointPlacements[j + 1].translation if j < n else np.zeros(3)
+            inertia = model.inertias[j]
+            values += [a[0], a[1], inertia.lever[0], inertia.lever[1], inertia.mass,
+                       inertia.inertia[2, 2]]
+        if abs(g[2]) > 0:
+            raise ValueError("gravity must lie in the x-y plane")
+        return cls(np.array(values, dtype=float), tuple(model.names[1:]))

@@ -1,0 +1,202 @@
+"""A planar arm pressing a compliant surface: the plant of chapters 3 and 5.
+
+Robot (3.1, 3.35, 5.1): M q'' + C q' + G = tau + J^T (f + f_dist), f the unilateral contact
+force of the surface (:mod:`cr_sim.models.surfaces`, 3.4), f_dist an external force on the
+end effector. Classical RK4 with the command held over the period, the contact force
+evaluated at every stage (``substeps`` RK4 steps per period where the contact is stiff).
+One compiled call per control period advances the state and evaluates the sensors at the
+new state, so the plant's share of the 1 kHz cycle stays a few microseconds.
+
+The arm comes from the URDF through Pinocchio (:mod:`cr_sim.models.arm_model`) and is packed
+into a :class:`~cr_sim.models.planar_chain.PlanarChain` for the compiled dynamics.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from cr_control.core.parameters import Param, ParameterError
+from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
+from cr_sim.models.planar_chain import PlanarChain, forward_dynamics, matvec, tool_kinematics
+from cr_sim.models.surfaces import surface_contact
+from cr_sim.plants.base import Measurement, Plant
+
+#: Sensor values written by the step kernel: contact force, depth, tool position, velocity.
+SENSORS = ("f_x", "f_y", "depth", "r_x", "r_y", "v_x", "v_y")
+
+
+def arm_parameters(length: float, com: float) -> list[Param]:
+    """The arm's geometric and inertial parameters with the given link length and centre of mass
+    (m = 0.1 kg, I = 0.3 kg m^2 in every chapter)."""
+    return [
+        Param("link_length", [length, length], "Link lengths (m).", "positive_vector", 2,
+              read_only=True),
+        Param("link_com", [com, com], "Centre-of-mass distance from each joint (m).",
+              "positive_vector", 2, read_only=True),
+        Param("link_mass", [0.1, 0.1], "Link masses (kg).", "positive_vector", 2, read_only=True),
+        Param("link_inertia", [0.3, 0.3], "Link inertias about the centre of mass (kg m^2).",
+              "positive_vector", 2, read_only=True),
+        Param("gravity", 9.8, "Gravitational acceleration along -y (m/s^2).", "nonnegative",
+              read_only=True),
+    ]
+
+
+def disturbance_parameters(amplitude: list[float], frequency: float, start: float,
+                           duration: float, what: str) -> list[Param]:
+    """Parameters of the external force f_dist on the end effector with the given defaults."""
+    return [
+        Param("disturbance_amplitude", amplitude,
+              f"External disturbance force f_dist on the end effector (N) ({what}); 0 = none.",
+              "vector", 2, read_only=True),
+        Param("disturbance_frequency", frequency,
+              "f_dist = amplitude*sin(w (t - start)) with this w (rad/s); 0 = constant force.",
+              "nonnegative", read_only=True),
+        Param("disturbance_start", start, "Time the disturbance starts (s).", "nonnegative",
+              read_only=True),
+        Param("disturbance_duration", duration, "How long it lasts (s); 0 = to the end.",
+              "nonnegative", read_only=True),
+    ]
+
+
+NOISE_PARAMETERS = [
+    Param("position_noise_std", 0.0, "Joint position measurement noise, std (rad).",
+          "nonnegative", read_only=True),
+    Param("velocity_noise_std", 0.0, "Joint velocity measurement noise, std (rad/s).",
+          "nonnegative", read_only=True),
+    Param("force_noise_std", 0.0, "Force measurement noise, std (N).", "nonnegative",
+          read_only=True),
+    Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True),
+]
+
+
+@njit(cache=True)
+def _disturbance(disturbance, t):
+    amplitude_x, amplitude_y, omega, start, duration = (
+        disturbance[0], disturbance[1], disturbance[2], disturbance[3], disturbance[4])
+    if t < start or (duration > 0.0 and t >= start + duration):
+        return 0.0, 0.0
+    if omega > 0.0:
+        s = math.sin(omega * (t - start))
+        return amplitude_x * s, amplitude_y * s
+    return amplitude_x, amplitude_y
+
+
+@njit(cache=True)
+def _derivative(chain, surface, disturbance, t, x, tau):
+    """x' = [q', q''] with the contact and disturbance forces at the tool."""
+    n = x.shape[0] // 2
+    q, v = x[:n], x[n:]
+    r, J, _ = tool_kinematics(chain, q, v)
+    r_dot = matvec(J, v)
+    fx, fy, _, _, _ = surface_contact(surface, r[0], r[1], r_dot[0], r_dot[1])
+    dx, dy = _disturbance(disturbance, t)
+    fx += dx
+    fy += dy
+    total = tau.copy()
+    for j in range(n):
+        total[j] += J[0, j] * fx + J[1, j] * fy
+    out = np.empty(2 * n)
+    out[:n] = v
+    out[n:] = forward_dynamics(chain, q, v, total)
+    return out
+
+
+@njit(cache=True)
+def _sensors(chain, surface, x, out):
+    n = x.shape[0] // 2
+    r, J, _ = tool_kinematics(chain, x[:n], x[n:])
+    r_dot = matvec(J, x[n:])
+    fx, fy, depth, _, _ = surface_contact(surface, r[0], r[1], r_dot[0], r_dot[1])
+    out[0], out[1], out[2] = fx, fy, depth
+    out[3], out[4], out[5], out[6] = r[0], r[1], r_dot[0], r_dot[1]
+
+
+@njit(cache=True)
+def arm_on_surface_step(chain, surface, disturbance, t, x, tau, dt, substeps, sensors):
+    """x after ``dt`` with ``tau`` held: ``substeps`` classical RK4 steps; writes SENSORS at
+    the new state into ``sensors``."""
+    h = dt / substeps
+    for i in range(substeps):
+        ti = t + i * h
+        k1 = _derivative(chain, surface, disturbance, ti, x, tau)
+        k2 = _derivative(chain, surface, disturbance, ti + 0.5 * h, x + (0.5 * h) * k1, tau)
+        k3 = _derivative(chain, surface, disturbance, ti + 0.5 * h, x + (0.5 * h) * k2, tau)
+        k4 = _derivative(chain, surface, disturbance, ti + h, x + h * k3, tau)
+        x = x + (h / 6.0) * (k1 + k4 + 2.0 * (k2 + k3))
+    _sensors(chain, surface, x, sensors)
+    return x
+
+
+class ArmOnSurface(Plant):
+    """A planar arm from the URDF pressing a packed compliant surface; scenario modules give
+    the surface, the initial state and the defaults."""
+
+    command_interface = "effort"
+
+    def __init__(self, values: dict, surface: np.ndarray, q0: np.ndarray):
+        if values["substeps"] < 1:
+            raise ParameterError("substeps must be >= 1")
+        self.arm = TwoLinkArm(LinkParameters(
+            length=list(values["link_length"]), com=list(values["link_com"]),
+            mass=list(values["link_mass"]), inertia=list(values["link_inertia"]),
+            gravity=values["gravity"],
+        ))
+        self.joint_names = TwoLinkArm.joint_names
+        self.chain = PlanarChain.from_model(self.arm.model, "tool0").chain
+        self.surface = surface
+        self.substeps = int(values["substeps"])
+        self.disturbance_packed = np.array([
+            *values["disturbance_amplitude"], values["disturbance_frequency"],
+            values["disturbance_start"], values["disturbance_duration"]], dtype=float)
+        self._noise = (values["position_noise_std"], values["velocity_noise_std"],
+                       values["force_noise_std"])
+        self._noisy = any(self._noise)
+        self._rng = np.random.default_rng(values["noise_seed"])
+        n = len(self.joint_names)
+        self._n = n
+        self._t = 0.0
+        self._effort = np.zeros(n)
+        self.sensors = np.zeros(len(SENSORS))
+        self.reset_state(q0)
+
+    def reset_state(self, q0, v0=None) -> None:
+        """Put the arm at q0 (at rest unless v0 is given), time unchanged."""
+        n = self._n
+        self._x = np.concatenate([np.asarray(q0, dtype=float),
+                                  np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)])
+        _sensors(self.chain, self.surface, self._x, self.sensors)
+
+    @property
+    def time(self) -> float:
+        return self._t
+
+    @property
+    def state(self) -> np.ndarray:
+        """[q, q'] (true, noise-free)."""
+        return self._x.copy()
+
+    def contact_force(self) -> np.ndarray:
+        """Force of the surface on the end effector now (2 components)."""
+        return self.sensors[:2].copy()
+
+    def step(self, command: np.ndarray, dt: float) -> None:
+        """Advance by dt with joint torques ``command`` held (a refused command keeps the last)."""
+        if self.accept(command):
+            self._effort = np.array(command, dtype=float)
+        self._x = arm_on_surface_step(self.chain, self.surface, self.disturbance_packed, self._t,
+                                      self._x, self._effort, dt, self.substeps, self.sensors)
+        self._t += dt
+
+    def measurement(self) -> Measurement:
+        n, x, sensors = self._n, self._x, self.sensors
+        q, v = x[:n].copy(), x[n:].copy()
+        force = np.array([sensors[0], sensors[1], 0.0])
+        if self._noisy:
+            q_std, v_std, f_std = self._noise
+            q += q_std * self._rng.standard_normal(n)
+            v += v_std * self._rng.standard_normal(n)
+            force[:2] += f_std * self._rng.standard_normal(2)
+        return Measurement(self._t, q, v, self._effort.copy(), force)
