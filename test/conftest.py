@@ -1,16 +1,36 @@
-"""Every ROS test is isolated: localhost-only discovery and its own domain id."""
+"""Every ROS test is isolated: localhost-only discovery and a domain id of its own.
+
+Domain ids come from :func:`ros_probe.next_domain`, which holds them machine-wide
+(cr_control.core.ros_env locks) for the test, or the module for module-scoped fixtures.
+"""
 
 import os
 
 import pytest
-from ros_probe import next_domain
+from ros_probe import domains_taken, next_domain, release_domains
 
-from cr_control.core.ros_env import FIRST_DOMAIN, isolated_env
+from cr_control.core.ros_env import isolated_env
 
-# Tests that call rclpy.init in this process inherit these.
+# Tests that call rclpy.init in this process inherit these; the id is held for the run.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.setdefault("ROS_DOMAIN_ID", str(FIRST_DOMAIN + os.getpid() % 50))
+os.environ["ROS_DOMAIN_ID"] = str(next_domain())
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _module_domains():
+    """Domains taken by module-scoped fixtures are released after the module."""
+    mark = domains_taken()
+    yield
+    release_domains(mark)
+
+
+@pytest.fixture(autouse=True)
+def _test_domains():
+    """Domains taken during a test (and its function-scoped fixtures) are released after it."""
+    mark = domains_taken()
+    yield
+    release_domains(mark)
 
 
 @pytest.fixture

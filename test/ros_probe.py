@@ -12,12 +12,36 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-_domains = (51 + i % 50 for i in itertools.count(os.getpid()))
+from cr_control.core.ros_env import DomainLock, claim_free_domain
+
+#: Tests take domain ids in 51..100 (sessions 1..50: a test never meets a session).
+TEST_FIRST_DOMAIN = 51
+TEST_DOMAIN_SPAN = 50
+
+_starts = itertools.count(os.getpid())
+#: Domains this test process holds, in the order taken (see release_domains).
+_claims: list[DomainLock] = []
 
 
 def next_domain() -> int:
-    """A ROS_DOMAIN_ID for one test (51..100, pid-offset so parallel runs rarely meet)."""
-    return next(_domains)
+    """A ROS_DOMAIN_ID (51..100) no other process on this machine holds; this process
+    holds it until :func:`release_domains` (conftest: at the end of the test, or of the
+    module for module-scoped fixtures) so parallel test runs never meet."""
+    lock = claim_free_domain(TEST_FIRST_DOMAIN, TEST_DOMAIN_SPAN,
+                             start=TEST_FIRST_DOMAIN + next(_starts) % TEST_DOMAIN_SPAN)
+    _claims.append(lock)
+    return lock.domain_id
+
+
+def domains_taken() -> int:
+    """How many domains were taken so far (a mark for :func:`release_domains`)."""
+    return len(_claims)
+
+
+def release_domains(mark: int) -> None:
+    """Release the domains taken after ``mark``."""
+    while len(_claims) > mark:
+        _claims.pop().release()
 
 
 class RosProbe:

@@ -241,7 +241,8 @@ def test_partial_recording_has_partial_metrics(tmp_path):
     writer.close()
     session = analysis.load_session(path)
     assert session.controller is None and session.name == "states_only"
-    assert analysis.metrics(session) == {"controller": "-"}
+    assert analysis.metrics(session) == {"controller": "-", "stamps_backwards_joint_states": 0,
+                                         "stamps_repeated_joint_states": 0, "data_warnings": 0}
     assert analysis.plot_session(session, tmp_path / "plots") == []
 
 

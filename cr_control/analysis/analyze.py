@@ -5,6 +5,11 @@ without ROS: messages are decoded with ``mcap_ros2``. A session gives what a con
 engineer asks first: tracking metrics (RMS/max position and force error, settling time,
 peak torque), controller compute time, loop timing, and the thesis's figures as PNG.
 
+It also checks that the recording is one session's own: more than one publisher on a
+control topic, or header stamps on /joint_states or /joint_commands that go backwards
+or repeat, mean another run shared the ROS domain (cross-talk) or the plant restarted.
+Such recordings get a ``WARNING`` line under the metrics and non-zero integrity fields.
+
 Command line::
 
     cr_analyze FILE.mcap [FILE2.mcap ...] [--out DIR] [--no-plots] [--json]
@@ -37,7 +42,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
-from cr_control.core import topics
+from cr_control.core import ros_yaml, topics
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: What the MCAP readers raise on damaged or truncated data.
@@ -54,6 +59,10 @@ NORM_PAIRS = [("M_r_norm", "M_r_hat_norm"), ("C_r_norm", "C_r_hat_norm"),
 ESTIMATE_PREFIXES = ("A_hat", "B_hat", "c_hat")
 #: Stamps this far (s) from a session's time zero are on another clock.
 DIFFERENT_CLOCK_S = 86_400.0
+#: Control topics (by role) that must have exactly one publisher, and the plant timing
+#: fields that count their publishers as the plant sees them.
+CONTROL_ROLES = ("joint_states", "joint_commands", "wrench")
+PUBLISHER_FIELDS = {"joint_states": "state_publishers", "joint_commands": "command_publishers"}
 
 _JOINT_STATE = "sensor_msgs/msg/JointState"
 _WRENCH = "geometry_msgs/msg/WrenchStamped"
@@ -73,6 +82,9 @@ class JointSeries:
     position: np.ndarray  #: shape (n, joints)
     velocity: np.ndarray
     effort: np.ndarray
+    #: Messages, in the order recorded, stamped before (after) or at the previous one.
+    stamps_backwards: int = 0
+    stamps_repeated: int = 0
 
 
 @dataclass
@@ -102,6 +114,9 @@ class Session:
     #: node -> parameter -> value (from the ``parameters/<node>`` metadata records).
     parameters: dict[str, dict[str, Any]] = field(default_factory=dict)
     message_counts: dict[str, int] = field(default_factory=dict)
+    #: Publishers per control topic role (CONTROL_ROLES) the recorder saw when it
+    #: subscribed (the channels' ``offered_qos_profiles``), where the file says.
+    publishers: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
     @property
@@ -195,14 +210,22 @@ def _stamp(msg: Any) -> float:
 
 
 class _Rows:
-    """Fixed-width float rows stored compactly, with a time column to sort by."""
+    """Fixed-width float rows stored compactly, with a time column to sort by.
+
+    Counts, in the order rows are added, times that go backwards or repeat.
+    """
 
     def __init__(self, width: int) -> None:
         self.width = width
         self.time = array("d")
         self.values = array("d")
+        self.backwards = 0
+        self.repeated = 0
 
     def add(self, time: float, row: Sequence[float]) -> None:
+        if self.time:
+            self.backwards += time < self.time[-1]
+            self.repeated += time == self.time[-1]
         self.time.append(time)
         self.values.extend(row)
 
@@ -259,7 +282,9 @@ class _JointTopic:
         time, table = self.rows.sorted()
         n = len(self.names)
         return JointSeries(time, self.names,
-                           *(table[:, k * n:(k + 1) * n] for k in range(len(self.KEYS))))
+                           *(table[:, k * n:(k + 1) * n] for k in range(len(self.KEYS))),
+                           stamps_backwards=self.rows.backwards,
+                           stamps_repeated=self.rows.repeated)
 
 
 class _WrenchTopic:
@@ -288,9 +313,20 @@ def _accumulator(kind: str, msg: Any) -> Any:
 
 def _parse_value(text: str) -> Any:
     try:
-        return yaml.safe_load(text)
+        return ros_yaml.load(text)
     except yaml.YAMLError:
         return text
+
+
+def _publisher_count(channel: Channel) -> int | None:
+    """Publishers of a recorded channel: entries of its ``offered_qos_profiles`` (rosbag2
+    writes one per publisher it matched), None if the file does not say."""
+    text = channel.metadata.get("offered_qos_profiles", "")
+    try:
+        offered = ros_yaml.load(text) if text.strip() else None
+    except yaml.YAMLError:
+        return None
+    return len(offered) if isinstance(offered, list) and offered else None
 
 
 def load_session(path: str | Path) -> Session:
@@ -301,10 +337,17 @@ def load_session(path: str | Path) -> Session:
     metadata: dict[str, dict[str, str]] = {}
     factory = DecoderFactory()
     accumulators: dict[str, Any] = {}
+    publishers: dict[str, int] = {}  # topic -> publishers over its channels
+    channels_seen: set[int] = set()
     try:
         for schema, channel, message in _iter_messages(path, session.warnings, metadata):
             topic = channel.topic
             session.message_counts[topic] = session.message_counts.get(topic, 0) + 1
+            if channel.id not in channels_seen:
+                channels_seen.add(channel.id)
+                count = _publisher_count(channel)
+                if count is not None:
+                    publishers[topic] = publishers.get(topic, 0) + count
             kind = _type_name(schema)
             if kind not in (_JOINT_STATE, _WRENCH, _ARRAY) or accumulators.get(
                     topic, True) is None:
@@ -330,13 +373,19 @@ def load_session(path: str | Path) -> Session:
         elif isinstance(acc, _WrenchTopic):
             if session.wrench is None or topic == topics.WRENCH:
                 session.wrench = acc.series()
+                _note_publishers(session, "wrench", publishers.get(topic))
         elif isinstance(acc, _JointTopic):
-            if topic == topics.JOINT_COMMANDS or topic.endswith("/joint_commands"):
-                session.joint_commands = acc.series()
-            elif topic == topics.JOINT_STATES or topic.endswith("/joint_states"):
-                session.joint_states = acc.series()
+            for role in ("joint_commands", "joint_states"):
+                if topic == f"/{role}" or topic.endswith(f"/{role}"):
+                    setattr(session, role, acc.series())
+                    _note_publishers(session, role, publishers.get(topic))
+                    break
 
     session.timing = session.labelled.get(topics.PLANT_TIMING, {})
+    for role, name in PUBLISHER_FIELDS.items():
+        counts = session.timing.get(name)
+        if counts is not None and np.isfinite(counts).any():
+            _note_publishers(session, role, int(np.nanmax(counts)))
     suffix = f"/{topics.STATUS_SUFFIX}"
     controllers = sorted(t[1:-len(suffix)] for t in session.labelled
                          if t.endswith(suffix) and t != topics.PLANT_TIMING)
@@ -357,6 +406,12 @@ def load_session(path: str | Path) -> Session:
         found = ", ".join(sorted(session.message_counts)) or "no messages"
         raise SessionError(f"{path}: none of cr_control's topics in this recording ({found})")
     return session
+
+
+def _note_publishers(session: Session, role: str, count: int | None) -> None:
+    """Keep the largest publisher count known for ``role``."""
+    if count is not None:
+        session.publishers[role] = max(count, session.publishers.get(role, 0))
 
 
 # -- metrics -----------------------------------------------------------------------------
@@ -450,7 +505,43 @@ def metrics(session: Session) -> dict[str, Any]:
             if source in last:
                 value = last[source]
                 out[key] = int(value) if key.endswith("cycles") else value
+    out.update(integrity(session))
     return out
+
+
+def integrity(session: Session) -> dict[str, int]:
+    """Is the recording one session's own? Publishers per control topic (where known),
+    stamps going backwards or repeating on the joint topics, and ``data_warnings``: how
+    many of those look wrong (see :func:`integrity_warnings`)."""
+    out = {f"publishers_{role}": session.publishers[role]
+           for role in CONTROL_ROLES if role in session.publishers}
+    for role in ("joint_states", "joint_commands"):
+        series = getattr(session, role)
+        if series is not None:
+            out[f"stamps_backwards_{role}"] = series.stamps_backwards
+            out[f"stamps_repeated_{role}"] = series.stamps_repeated
+    out["data_warnings"] = len(integrity_warnings(out))
+    return out
+
+
+def integrity_warnings(values: dict[str, Any]) -> list[str]:
+    """One sentence per integrity problem in metrics ``values`` (see :func:`integrity`)."""
+    found = []
+    for role in CONTROL_ROLES:
+        count = values.get(f"publishers_{role}", 1)
+        if count > 1:
+            found.append(f"{count} publishers on /{role}: another run shares this "
+                         "ROS_DOMAIN_ID (cross-talk); its data is mixed in")
+    for role in ("joint_states", "joint_commands"):
+        backwards = values.get(f"stamps_backwards_{role}", 0)
+        repeated = values.get(f"stamps_repeated_{role}", 0)
+        if backwards:
+            found.append(f"stamps on /{role} went backwards {backwards} times: a second "
+                         "publisher (cross-talk) or a restarted plant")
+        if repeated:
+            found.append(f"stamps on /{role} repeated {repeated} times: a second publisher, "
+                         "or states resent by a stalled lockstep loop")
+    return found
 
 
 def _format_value(value: Any) -> str:
@@ -475,6 +566,8 @@ def format_metrics(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
                        for i, (cell, w) in enumerate(zip(line, widths, strict=True))).rstrip()
              for line in table]
     lines.insert(1, "  ".join("-" * w for w in widths))
+    lines += [f"WARNING: {name}: {text}" for name, values in rows
+              for text in integrity_warnings(values)]
     return "\n".join(lines)
 
 
@@ -794,6 +887,9 @@ def main(argv: Iterable[str] | None = None) -> int:
     if args.json:
         print(json.dumps({label: {k: _json_safe(v) for k, v in values.items()}
                           for label, values in rows}, indent=2))
+        for label, values in rows:
+            for text in integrity_warnings(values):
+                print(f"WARNING: {label}: {text}", file=sys.stderr)
     else:
         print(format_metrics(rows))
     if not args.no_plots:

@@ -2,22 +2,177 @@
 
 Fast DDS multicasts discovery off the machine by default; every process we start runs
 with localhost-only discovery and a domain id of its own so parallel runs never meet.
+
+"Of its own" is enforced machine-wide by a lock file per domain id
+(``$TMPDIR/cr_control-domains/<id>.lock``, ``flock``-ed): :func:`claim_domain` takes an
+id for as long as the process lives (the kernel releases it when the process dies, even
+on SIGKILL), :func:`claim_free_domain` takes the first id nobody holds. Sessions hand
+out ids in 1..50, tests in 51..100, so a session and a test run never meet either.
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
+import fcntl
 import os
+import tempfile
+from pathlib import Path
 
 #: Domain ids handed out automatically lie in [FIRST_DOMAIN, FIRST_DOMAIN + DOMAIN_SPAN);
 #: the tests use 51..100 so a session and a test run on one machine never meet.
 #: Fast DDS maps domain ids above ~101 onto ports outside the usual Linux range.
 FIRST_DOMAIN = 1
 DOMAIN_SPAN = 50
+#: Largest ROS_DOMAIN_ID Fast DDS accepts on Linux.
+MAX_DOMAIN_ID = 232
+#: Where the per-domain lock files live (shared by every user of this machine).
+LOCK_DIR = Path(tempfile.gettempdir()) / "cr_control-domains"
+
+
+def check_domain_id(value: int | str) -> int:
+    """``value`` as a domain id (ValueError saying why if it is not an integer in 0..232)."""
+    try:
+        domain_id = int(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"ROS_DOMAIN_ID must be an integer, not {value!r}") from None
+    if not 0 <= domain_id <= MAX_DOMAIN_ID:
+        raise ValueError(f"ROS_DOMAIN_ID must be in 0..{MAX_DOMAIN_ID}, not {domain_id}")
+    return domain_id
+
+
+def domain_id_arg(text: str) -> int:
+    """argparse ``type`` of a ``--domain-id`` option (see :func:`check_domain_id`)."""
+    try:
+        return check_domain_id(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+class DomainBusyError(RuntimeError):
+    """The domain id is held by another process on this machine; the message says which."""
+
+
+class DomainLock:
+    """This process's claim on one ROS domain id (see :func:`claim_domain`).
+
+    Claims are counted within a process: claiming an id this process already holds
+    returns the same lock, which is released when every claim has been released.
+    """
+
+    def __init__(self, domain_id: int, fd: int):
+        self.domain_id = domain_id
+        self._fd = fd
+        self._claims = 1
+
+    @property
+    def held(self) -> bool:
+        """True until the last claim is released."""
+        return self._claims > 0
+
+    def fileno(self) -> int:
+        """The lock file's descriptor: a child process that inherits it holds the lock too."""
+        return self._fd
+
+    def release(self) -> None:
+        """Give one claim back; the id is free for others once the last one is."""
+        if self._claims == 0:
+            return
+        self._claims -= 1
+        if self._claims == 0:
+            _held.pop(self.domain_id, None)
+            os.close(self._fd)  # closing the descriptor drops the flock
+
+    def __enter__(self) -> DomainLock:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+#: Domain id -> this process's lock on it.
+_held: dict[int, DomainLock] = {}
+
+
+def _lock_path(domain_id: int) -> Path:
+    LOCK_DIR.mkdir(mode=0o777, parents=True, exist_ok=True)
+    with contextlib.suppress(OSError):  # fails if another user made it: theirs to set
+        LOCK_DIR.chmod(0o1777)  # sticky, world-writable: other users may claim ids too
+    return LOCK_DIR / f"{domain_id}.lock"
+
+
+def _holder(path: Path) -> str:
+    """Who holds a lock file, as its holder wrote it ("" if unknown)."""
+    try:
+        return path.read_text().strip()
+    except OSError:
+        return ""
+
+
+def claim_domain(domain_id: int) -> DomainLock:
+    """Hold ``domain_id`` for this process's lifetime (or until released).
+
+    Raises :class:`DomainBusyError` naming the holder if another process holds it.
+    """
+    if domain_id in _held:
+        lock = _held[domain_id]
+        lock._claims += 1
+        return lock
+    path = _lock_path(domain_id)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    with contextlib.suppress(OSError):
+        os.fchmod(fd, 0o666)  # past the umask: other users may claim this id later
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        holder = _holder(path)
+        raise DomainBusyError(f"ROS_DOMAIN_ID {domain_id} is in use by another run on this machine"
+                         f"{f' ({holder})' if holder else ''}") from None
+    os.ftruncate(fd, 0)
+    os.write(fd, f"pid {os.getpid()}".encode())
+    _held[domain_id] = lock = DomainLock(domain_id, fd)
+    return lock
+
+
+def claim_free_domain(first: int = FIRST_DOMAIN, span: int = DOMAIN_SPAN,
+                      start: int | None = None) -> DomainLock:
+    """Hold the first id of ``first .. first + span - 1`` no other process holds.
+
+    The search begins at ``start`` (default: pid-based, so parallel runs rarely race
+    for the same id) and wraps around. DomainBusyError if every id is taken.
+    """
+    offset = (os.getpid() if start is None else start - first) % span
+    for i in range(span):
+        domain_id = first + (offset + i) % span
+        if domain_id in _held:
+            continue  # ours already, for another purpose
+        try:
+            return claim_domain(domain_id)
+        except DomainBusyError:
+            continue
+    raise DomainBusyError(f"every ROS_DOMAIN_ID in {first}..{first + span - 1} is in use on this machine")
+
+
+def domain_in_use(domain_id: int) -> bool:
+    """True if another process holds ``domain_id`` (a snapshot: it may change right after)."""
+    if domain_id in _held:
+        return False
+    try:
+        claim_domain(domain_id).release()
+    except DomainBusyError:
+        return True
+    return False
 
 
 def free_domain_id(seed: int | None = None) -> int:
-    """A domain id unlikely to be in use by another run on this machine (pid-based)."""
+    """A domain id of the automatic range that no process holds right now (not claimed:
+    use :func:`claim_free_domain` to keep others out). Starts at ``seed`` (default pid)."""
     seed = os.getpid() if seed is None else seed
+    for i in range(DOMAIN_SPAN):
+        domain_id = FIRST_DOMAIN + (seed + i) % DOMAIN_SPAN
+        if not domain_in_use(domain_id):
+            return domain_id
     return FIRST_DOMAIN + seed % DOMAIN_SPAN
 
 

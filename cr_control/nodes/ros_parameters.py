@@ -2,16 +2,19 @@
 
 Modelled on ros2_controllers' generated parameter handling: every parameter declared
 with its type, description and read-only flag; values from a params file checked at
-start-up (a bad file stops the node with the reason); live changes through the standard
+start-up (a bad file stops the node with the reason: a refused value, a value of the
+wrong type, a parameter the node does not have); live changes through the standard
 parameter services validated and refused with a reason, leaving the old value in force.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import difflib
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -34,6 +37,84 @@ _ROS_TYPES = {
     "string_list": ParameterType.PARAMETER_STRING_ARRAY,
 }
 
+#: Parameters every rclpy node declares by itself (and ``qos_overrides.*`` ones).
+BUILTIN_PARAMETERS = ("use_sim_time", "start_type_description_service")
+_BUILTIN_PREFIX = "qos_overrides."
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def coerce(value: Any, ros_type: int) -> Any:
+    """Make a value fit a declared type where no information is lost: ``5`` for a
+    double, ``[1, 2]`` for a double array. Anything else is returned unchanged."""
+    if ros_type == ParameterType.PARAMETER_DOUBLE and _is_int(value):
+        return float(value)
+    if (ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY and isinstance(value, list | tuple)
+            and all(_is_int(v) or isinstance(v, float) for v in value)):
+        return [float(v) for v in value]
+    return value
+
+
+def type_name(ros_type: int) -> str:
+    """``double array`` for PARAMETER_DOUBLE_ARRAY, and so on."""
+    return Parameter.Type(ros_type).name.lower().replace("_", " ")
+
+
+def refuse_unknown(owner: str, given: Iterable[str], known: Iterable[str]) -> None:
+    """ParameterError naming every name of ``given`` that ``owner`` does not have
+    (with the closest known name as a hint); rclpy's own parameters always count as known."""
+    known = set(known) | set(BUILTIN_PARAMETERS)
+    unknown = [n for n in given if n not in known and not n.startswith(_BUILTIN_PREFIX)]
+    if not unknown:
+        return
+    hints = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, sorted(known), n=1)
+        hints.append(f"{name} (did you mean {close[0]}?)" if close else name)
+    plural = "s" if len(unknown) > 1 else ""
+    raise ParameterError(f"unknown parameter{plural} for {owner}: {', '.join(hints)}")
+
+
+def refuse_undeclared(node: Node) -> None:
+    """Call once every parameter is declared: ParameterError if the node was given a
+    parameter it does not have (a misspelt name in a params file or a ``-p``), which
+    rclpy would otherwise keep unused without a word."""
+    # rclpy 7.1.6 has no public accessor for the overrides (params files, -p arguments).
+    given = node._parameter_overrides  # noqa: SLF001
+    refuse_unknown(node.get_name(), given, node.list_parameters([], 0).names)
+
+
+def declare(node: Node, specs: Sequence[Param]) -> dict[str, Any]:
+    """Declare ``specs`` on ``node``; return their validated, converted values.
+
+    Given values of a compatible type are converted (``150`` for a double). Raises
+    ParameterError naming the parameter and the reason if a given value is refused or
+    of the wrong type. (Call :func:`refuse_undeclared` after the last ``declare``.)
+    """
+    values = {}
+    overrides = node._parameter_overrides  # noqa: SLF001 - see refuse_undeclared
+    for param in specs:
+        ros_type = _ROS_TYPES[param.kind]
+        descriptor = ParameterDescriptor(
+            name=param.name, type=ros_type, description=_description(param),
+            read_only=param.read_only)
+        given = overrides.get(param.name)
+        if given is not None and (fitted := coerce(given.value, ros_type)) is not given.value:
+            overrides[param.name] = Parameter(param.name, value=fitted)
+        try:
+            value = node.declare_parameter(param.name, param.ros_default, descriptor).value
+        except InvalidParameterTypeException:
+            got = overrides[param.name]
+            raise ParameterError(f"parameter {param.name} must be a {type_name(ros_type)}, got "
+                                 f"a {type_name(got.type_.value)} ({got.value!r})") from None
+        ok, reason, converted = validate(param, value)
+        if not ok:
+            raise ParameterError(f"parameter {param.name}: {reason}")
+        values[param.name] = converted
+    return values
+
 
 def _description(param: Param) -> str:
     text = param.description
@@ -44,31 +125,21 @@ def _description(param: Param) -> str:
     return text
 
 
-def declare(node: Node, specs: Sequence[Param]) -> dict[str, Any]:
-    """Declare ``specs`` on ``node``; return their validated, converted values.
-
-    Raises ParameterError naming the parameter and the reason if a given value is refused.
-    """
-    values = {}
-    for param in specs:
-        descriptor = ParameterDescriptor(
-            name=param.name, type=_ROS_TYPES[param.kind], description=_description(param),
-            read_only=param.read_only)
-        value = node.declare_parameter(param.name, param.ros_default, descriptor).value
-        ok, reason, converted = validate(param, value)
-        if not ok:
-            raise ParameterError(f"parameter {param.name}: {reason}")
-        values[param.name] = converted
-    return values
-
-
 def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any], None]) -> None:
     """Validate live changes of ``specs`` on ``node`` and hand accepted ones to ``apply``.
 
-    A change set with any refused value is refused whole (nothing applied), with the
-    reason in the service response. ``apply`` runs after rclpy stored the new values,
-    so the value is in force from the next control cycle on.
+    Call it after declaring every parameter: it first refuses parameters given at start
+    that the node does not have (:func:`refuse_undeclared`).
+
+    What is refused follows ROS semantics: a ``SetParametersAtomically`` request with
+    any refused value is refused whole (nothing applied); a ``SetParameters`` request
+    (what ``ros2 param set`` and ``cr_param set`` send) is handled parameter by
+    parameter, each with its own result, so in a mixed request the valid values are
+    applied and the refused ones keep their old value. The reason is in the service
+    response. ``apply`` runs after rclpy stored the new values, so a value is in force
+    from the next control cycle on.
     """
+    refuse_undeclared(node)
     by_name = {p.name: p for p in specs}
 
     def check(params: list[Parameter]) -> SetParametersResult:
@@ -92,4 +163,5 @@ def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any
     node.add_post_set_parameters_callback(commit)
 
 
-__all__ = ["ParameterError", "declare", "police_changes"]
+__all__ = ["BUILTIN_PARAMETERS", "ParameterError", "coerce", "declare", "police_changes",
+           "refuse_undeclared", "refuse_unknown", "type_name"]

@@ -2,7 +2,9 @@
 
 Calls the same standard rcl_interfaces services ``ros2 param`` calls, so it works with
 any ROS 2 node. Runs on $ROS_DOMAIN_ID (the session runner prints the one it uses) with
-localhost discovery unless set otherwise.
+localhost discovery unless set otherwise. Values are YAML as ROS params files read it
+(``1e12`` is a number). Exit status: 0 done, 1 refused by the node, 2 usage or
+connection error (unknown parameter, unreadable value, node not found).
 
     cr_param list /adaptive_impedance
     cr_param get /adaptive_impedance Q_c
@@ -17,20 +19,10 @@ import time
 
 import yaml
 
-from cr_control.core.ros_env import isolate_this_process
+from cr_control.core import ros_yaml
+from cr_control.core.ros_env import domain_id_arg, isolate_this_process
 
 TIMEOUT_S = 10.0
-
-
-def _coerce(value, ros_type: int):
-    """Make a YAML value fit the declared type (``5`` for a double, ``[1, 2]`` for doubles)."""
-    from rcl_interfaces.msg import ParameterType
-
-    if ros_type == ParameterType.PARAMETER_DOUBLE and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if ros_type == ParameterType.PARAMETER_DOUBLE_ARRAY and isinstance(value, list):
-        return [float(v) if isinstance(v, int) and not isinstance(v, bool) else v for v in value]
-    return value
 
 
 def _call(node, executor, srv_type, service: str, request):
@@ -48,6 +40,14 @@ def _call(node, executor, srv_type, service: str, request):
     return future.result()
 
 
+def _parse_value(text: str):
+    """The command-line value as YAML (ValueError naming the problem)."""
+    try:
+        return ros_yaml.load(text)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"value {text!r} is not valid YAML: {ros_yaml.describe_error(exc)}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     """Carry out one list/get/set command; print the outcome; exit code."""
     import rclpy
@@ -55,34 +55,45 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter, parameter_value_to_python
 
+    from cr_control.nodes.ros_parameters import coerce, refuse_unknown
+
     target = "/" + args.node.strip("/")
     rclpy.init()
     node = rclpy.create_node("cr_param")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+
+    def call(srv_type, service: str, request):
+        return _call(node, executor, srv_type, f"{target}/{service}", request)
+
+    def names() -> list[str]:
+        return sorted(call(ListParameters, "list_parameters", ListParameters.Request()).result.names)
+
     try:
         if args.command == "list":
-            result = _call(node, executor, ListParameters, f"{target}/list_parameters",
-                           ListParameters.Request())
-            print("\n".join(sorted(result.result.names)))
+            print("\n".join(names()))
             return 0
+        value = _parse_value(args.value) if args.command == "set" else None
+        described = call(DescribeParameters, "describe_parameters",
+                         DescribeParameters.Request(names=[args.name])).descriptors
+        if not described:  # what rclpy answers for a parameter the node does not have
+            refuse_unknown(target, [args.name], names())
         if args.command == "get":
-            result = _call(node, executor, GetParameters, f"{target}/get_parameters",
-                           GetParameters.Request(names=[args.name]))
+            result = call(GetParameters, "get_parameters", GetParameters.Request(names=[args.name]))
             print(f"{args.name}: {parameter_value_to_python(result.values[0])}")
             return 0
-        described = _call(node, executor, DescribeParameters, f"{target}/describe_parameters",
-                          DescribeParameters.Request(names=[args.name])).descriptors[0]
-        value = _coerce(yaml.safe_load(args.value), described.type)
-        msg = Parameter(args.name, value=value).to_parameter_msg()
-        result = _call(node, executor, SetParameters, f"{target}/set_parameters",
-                       SetParameters.Request(parameters=[msg])).results[0]
+        value = coerce(value, described[0].type)
+        try:
+            msg = Parameter(args.name, value=value).to_parameter_msg()
+        except TypeError:
+            raise ValueError(f"{args.value!r} cannot be a ROS parameter value") from None
+        result = call(SetParameters, "set_parameters", SetParameters.Request(parameters=[msg])).results[0]
         if result.successful:
             print(f"set {args.name} = {value}")
             return 0
         print(f"refused: {result.reason}", file=sys.stderr)
         return 1
-    except (TimeoutError, TypeError, yaml.YAMLError) as exc:
+    except (TimeoutError, ValueError) as exc:  # ParameterError is a ValueError
         print(f"cr_param: {exc}", file=sys.stderr)
         return 2
     finally:
@@ -94,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     p = argparse.ArgumentParser(prog="cr_param", description=__doc__.split("\n\n")[0])
-    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID of the session (default: $ROS_DOMAIN_ID)")
+    p.add_argument("--domain-id", type=domain_id_arg,
+                   help="ROS_DOMAIN_ID of the session (default: $ROS_DOMAIN_ID)")
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="names of a node's parameters").add_argument("node")
     get = sub.add_parser("get", help="a parameter's value")
@@ -103,10 +115,14 @@ def main(argv: list[str] | None = None) -> int:
     set_ = sub.add_parser("set", help="change a parameter (refused values leave the old one)")
     set_.add_argument("node")
     set_.add_argument("name")
-    set_.add_argument("value", help="YAML value, e.g. 2.0 or '[50.0, 50.0]'")
+    set_.add_argument("value", help="YAML value, e.g. 2.0, 1e12 or '[50.0, 50.0]'")
     args = p.parse_args(argv)
     isolate_this_process(args.domain_id)
-    return run(args)
+    try:
+        return run(args)
+    except KeyboardInterrupt:
+        print("cr_param: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

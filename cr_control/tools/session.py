@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -24,10 +26,19 @@ from typing import Any
 
 import yaml
 
-from cr_control.core import topics
+from cr_control.core import ros_yaml, topics
+from cr_control.core.parameters import ParameterError
 from cr_control.core.paths import config_file
-from cr_control.core.ros_env import isolated_env
-from cr_control.schemes.registry import SCHEMES, default_scenario
+from cr_control.core.ros_env import (
+    DomainBusyError,
+    DomainLock,
+    check_domain_id,
+    claim_domain,
+    claim_free_domain,
+    domain_id_arg,
+    isolated_env,
+)
+from cr_control.schemes.registry import SCHEMES, controller_class, default_scenario
 
 STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 15.0
@@ -63,11 +74,36 @@ class SessionResult:
     logs: Path
 
 
+#: Parameters the recorder node declares (cr_control/recording/recorder.py; a test
+#: checks this list against a running Recorder).
+RECORDER_PARAMETERS = ("output", "topics", "optional_topics", "parameter_nodes", "ready_timeout")
+#: Node names of a params file that address every node.
+WILDCARD_NODES = ("**", "/**")
+
+
 def _load_params_file(path: Path) -> dict[str, dict[str, Any]]:
-    data = yaml.safe_load(path.read_text()) or {}
+    """A ROS params file as {node: {parameter: value}}; SessionError saying what is wrong."""
+    try:
+        data = ros_yaml.load(path.read_text())
+    except OSError as exc:
+        raise SessionError(f"params file {path}: {exc.strerror or exc}") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        reason = ros_yaml.describe_error(exc) if isinstance(exc, yaml.YAMLError) else "not text"
+        raise SessionError(f"params file {path}: not valid YAML: {reason}") from None
+    if data is None:
+        return {}
+    expected = "expected 'NODE: {ros__parameters: {NAME: VALUE, ...}}'"
     if not isinstance(data, dict):
-        raise SessionError(f"{path}: not a ROS params file")
-    return {node: dict((body or {}).get("ros__parameters", {})) for node, body in data.items()}
+        raise SessionError(f"params file {path}: not a ROS params file ({expected}, "
+                           f"found a {type(data).__name__})")
+    nodes = {}
+    for node, body in data.items():
+        values = body.get("ros__parameters") if isinstance(body, dict) else None
+        if not isinstance(values, dict):
+            raise SessionError(f"params file {path}: node {node!r} has no ros__parameters "
+                               f"mapping ({expected})")
+        nodes[str(node) if str(node) in WILDCARD_NODES else str(node).lstrip("/")] = dict(values)
+    return nodes
 
 
 def _parse_override(text: str) -> tuple[str, str, Any]:
@@ -76,11 +112,44 @@ def _parse_override(text: str) -> tuple[str, str, Any]:
     node, dot, name = key.partition(".")
     if not sep or not dot or not node or not name:
         raise SessionError(f"override {text!r} is not of the form node.param=value")
-    return node, name, yaml.safe_load(raw)
+    try:
+        return node, name, ros_yaml.load(raw)
+    except yaml.YAMLError as exc:
+        raise SessionError(f"override {text!r}: value is not valid YAML: "
+                           f"{ros_yaml.describe_error(exc)}") from None
+
+
+def _merge(params: dict[str, dict[str, Any]], node: str, values: dict[str, Any], source: str) -> None:
+    """Add ``values`` for ``node`` (or every node for a wildcard) from ``source``."""
+    targets = list(params) if node in WILDCARD_NODES else [node]
+    for target in targets:
+        if target not in params:
+            raise SessionError(f"{source}: no node {target!r} in this session "
+                               f"(nodes: {', '.join(params)})")
+        params[target].update(values)
+
+
+def declared_parameters(node: str, params: dict[str, Any], scheme: str) -> list[str]:
+    """Names of the parameters session node ``node`` declares, given its ``params``."""
+    if node == "recorder":
+        return list(RECORDER_PARAMETERS)
+    if node == "plant":
+        from cr_sim.plant_node import plant_parameters
+        from cr_sim.plants.registry import SCENARIOS
+
+        scenario = params.get("scenario")
+        if scenario not in SCENARIOS:
+            raise SessionError(f"plant.scenario {scenario!r} is not one of {sorted(SCENARIOS)}")
+        return [p.name for p in plant_parameters(scenario)]
+    return [p.name for p in controller_class(scheme).parameters()]
 
 
 def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, Any]]:
-    """Parameters of every node of the session: shipped defaults, files, overrides."""
+    """Parameters of every node of the session: shipped defaults, files, overrides.
+
+    SessionError naming the file, node or parameter for anything a node would not take:
+    unreadable or malformed files, unknown nodes, unknown parameter names.
+    """
     scenario = default_scenario(cfg.scheme)
     params = _load_params_file(config_file(f"{cfg.scheme}.yaml"))
     params.update(_load_params_file(config_file(f"plant_{scenario}.yaml")))
@@ -95,21 +164,56 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
         "ready_timeout": 30.0,
     }
     for path in cfg.params_files:
-        for node, values in _load_params_file(path).items():
-            params.setdefault(node, {}).update(values)
+        for node, values in _load_params_file(Path(path)).items():
+            _merge(params, node, values, f"params file {path}")
     for text in cfg.overrides:
         node, name, value = _parse_override(text)
-        params.setdefault(node, {})[name] = value
+        _merge(params, node, {name: value}, f"override {text!r}")
+    _refuse_unknown_parameters(params, cfg.scheme)
     return params
+
+
+def _refuse_unknown_parameters(params: dict[str, dict[str, Any]], scheme: str) -> None:
+    from cr_control.nodes.ros_parameters import refuse_unknown
+
+    for node, values in params.items():
+        try:
+            refuse_unknown(node, values, declared_parameters(node, values, scheme))
+        except ParameterError as exc:
+            raise SessionError(str(exc)) from None
+
+
+def _check_out(out: Path) -> None:
+    """SessionError unless session directories can be made under ``out``."""
+    existing = out.absolute()
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise SessionError(f"--out {out}: {existing} is not a directory")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise SessionError(f"--out {out}: no permission to create anything in {existing}")
+
+
+def _new_directories(path: Path) -> list[Path]:
+    """``path`` and those of its parents that do not exist yet, outermost first."""
+    missing = []
+    while not path.exists() and path != path.parent:
+        missing.append(path)
+        path = path.parent
+    return missing[::-1]
 
 
 class ProcessGroup:
     """Child processes of one run: each in a process group of its own, output to a log file."""
 
-    def __init__(self, logs: Path, env: dict[str, str], progress=print):
+    def __init__(self, logs: Path, env: dict[str, str], progress=print,
+                 inherit: Iterable[int] = ()):
+        """``inherit``: file descriptors the children keep open (e.g. a domain lock, so
+        that it stays held while any of them runs)."""
         self.logs = logs
         self.env = env
         self.progress = progress
+        self.inherit = tuple(inherit)
         self.processes: dict[str, subprocess.Popen] = {}
         self._files: list = []
 
@@ -118,7 +222,7 @@ class ProcessGroup:
         log = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 - closed by stop()
         self._files.append(log)
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
-                                start_new_session=True)
+                                start_new_session=True, pass_fds=self.inherit)
         self.processes[name] = proc
         return proc
 
@@ -176,7 +280,13 @@ class ProcessGroup:
 
 
 class Session:
-    """The processes of one session and their logs."""
+    """The processes of one session and their logs.
+
+    Everything is checked before anything is created: the configuration, ``--out``, the
+    params files and overrides (unknown nodes and parameter names refused). :meth:`run`
+    then claims the domain id (machine-wide, see :mod:`cr_control.core.ros_env`): the
+    one asked for (``domain_id``, else $ROS_DOMAIN_ID) or, if none, a free one.
+    """
 
     def __init__(self, cfg: SessionConfig, progress=print):
         if cfg.scheme not in SCHEMES:
@@ -189,13 +299,42 @@ class Session:
         self.progress = progress
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         name = cfg.name or f"{stamp}-{cfg.scheme}-{cfg.mode}{'-composed' if cfg.composed else ''}"
+        _check_out(Path(cfg.out))
         self.dir = Path(cfg.out) / name
         self.logs = self.dir / "logs"
         self.mcap = self.dir / "session.mcap"
         self.params_path = self.dir / "params.yaml"
-        self.env = isolated_env(cfg.domain_id)
+        self.params = session_parameters(cfg, self.mcap)
+        self.requested_domain = self._requested_domain()
+        self.env = isolated_env(self.requested_domain)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
+        self.domain: DomainLock | None = None
         self.group = ProcessGroup(self.logs, self.env, progress)
+
+    def _requested_domain(self) -> int | None:
+        """The domain id asked for: ``cfg.domain_id``, else $ROS_DOMAIN_ID, else None."""
+        if self.cfg.domain_id is not None:
+            value, source = self.cfg.domain_id, "--domain-id"
+        elif os.environ.get("ROS_DOMAIN_ID", "").strip():
+            value, source = os.environ["ROS_DOMAIN_ID"].strip(), "$ROS_DOMAIN_ID"
+        else:
+            return None
+        try:
+            return check_domain_id(value)
+        except ValueError as exc:
+            raise SessionError(f"{source}: {exc}") from None
+
+    def _claim_domain(self) -> DomainLock:
+        """Hold the session's domain id; SessionError if another run on this machine has it."""
+        try:
+            if self.requested_domain is None:
+                return claim_free_domain()
+            return claim_domain(self.requested_domain)
+        except DomainBusyError as exc:
+            hint = ("pass another --domain-id" if self.cfg.domain_id is not None else
+                    "unset ROS_DOMAIN_ID (a free id is then chosen) or pass --domain-id")
+            raise SessionError(f"{exc}: refusing to start, it would mix with that run; "
+                               f"{hint}") from None
 
     @property
     def processes(self) -> dict[str, subprocess.Popen]:
@@ -206,28 +345,44 @@ class Session:
         self.group.start(name, [sys.executable, "-m", module, *args,
                                 "--ros-args", "--params-file", str(self.params_path)])
 
+    def _create_files(self) -> None:
+        """The session directory, its logs folder and params.yaml (nothing left on failure)."""
+        created = _new_directories(self.logs)
+        try:
+            self.logs.mkdir(parents=True, exist_ok=True)
+            self.params_path.write_text(yaml.safe_dump(
+                {node: {"ros__parameters": values} for node, values in self.params.items()},
+                sort_keys=False))
+        except OSError as exc:
+            if created:
+                shutil.rmtree(created[0], ignore_errors=True)
+            raise SessionError(f"cannot create {self.dir}: {exc.strerror or exc}") from None
+
     def run(self) -> SessionResult:
         """Run the session to the end; SessionError (with log tails) if a process fails."""
         cfg = self.cfg
-        self.logs.mkdir(parents=True, exist_ok=True)
-        params = session_parameters(cfg, self.mcap)
-        self.params_path.write_text(yaml.safe_dump(
-            {node: {"ros__parameters": values} for node, values in params.items()}, sort_keys=False))
-        self.progress(f"session {self.dir} (ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']}, "
-                      f"discovery {self.env['ROS_AUTOMATIC_DISCOVERY_RANGE']})")
-        main = "container" if cfg.composed else "plant"
+        self.domain = self._claim_domain()
         try:
-            if cfg.record:
-                self._start("recorder", "cr_control.recording.recorder")
-            if cfg.composed:
-                self._start(main, "cr_control.nodes.container", cfg.scheme)
-            else:
-                self._start(cfg.scheme, "cr_control.nodes.controller_node", cfg.scheme)
-                self._start(main, "cr_sim.plant_node")
-            budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
-            self.group.wait(main, budget, "] [plant]: t=")
+            self.env["ROS_DOMAIN_ID"] = str(self.domain.domain_id)
+            self.group.inherit = (self.domain.fileno(),)
+            self._create_files()
+            self.progress(f"session {self.dir} (ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']}, "
+                          f"discovery {self.env['ROS_AUTOMATIC_DISCOVERY_RANGE']})")
+            main = "container" if cfg.composed else "plant"
+            try:
+                if cfg.record:
+                    self._start("recorder", "cr_control.recording.recorder")
+                if cfg.composed:
+                    self._start(main, "cr_control.nodes.container", cfg.scheme)
+                else:
+                    self._start(cfg.scheme, "cr_control.nodes.controller_node", cfg.scheme)
+                    self._start(main, "cr_sim.plant_node")
+                budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
+                self.group.wait(main, budget, "] [plant]: t=")
+            finally:
+                self.stop()
         finally:
-            self.stop()
+            self.domain.release()
         return SessionResult(self.dir, self.mcap if cfg.record else None, self.params_path, self.logs)
 
     def stop(self) -> None:
@@ -260,7 +415,9 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="NODE.PARAM=VALUE", help="override one parameter, e.g. plant.stiffness=300.0")
     p.add_argument("--no-record", action="store_true", help="run without the recorder")
     p.add_argument("--no-analysis", action="store_true", help="do not analyse the recording")
-    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: from $ROS_DOMAIN_ID or pid)")
+    p.add_argument("--domain-id", type=domain_id_arg,
+                   help="ROS_DOMAIN_ID; refused if another run on this machine holds it "
+                        "(default: $ROS_DOMAIN_ID, else a free id in 1..50)")
     return p
 
 
@@ -278,7 +435,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"logs: {result.logs}")
         if result.mcap and not args.no_analysis:
             analyse(result)
-    except (SessionError, FileNotFoundError) as exc:
+    except (SessionError, OSError) as exc:
         print(f"cr_session: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
