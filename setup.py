@@ -21,7 +21,9 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.urdf")),
-    ],
+    ]
+    # Launch files, if any, where `ros2 launch cr_control ...` looks for them.
+    + ([(f"share/{PACKAGE}/launch", glob("launch/*"))] if glob("launch/*") else []),
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="cr_control maintainers",
