@@ -52,7 +52,8 @@ def test_task_space_model_reproduces_joint_dynamics(arm, q, v):
     task = ArmTaskSpace({"model_link_length": [0.3, 0.3], "model_link_com": [0.15, 0.15],
                          "model_link_mass": [0.1, 0.1], "model_link_inertia": [0.3, 0.3],
                          "model_gravity": 9.8, "reference_offset": np.zeros(2),
-                         "reference_amplitude": np.zeros(2), "reference_frequency": 0.0})
+                         "reference_amplitude": np.zeros(2), "reference_phase": np.zeros(2),
+                         "reference_frequency": 0.0})
     if abs(np.linalg.det(arm.jacobian(q))) < 1e-3:
         pytest.skip("near a singularity")
     tau, f = np.array([0.7, -0.3]), np.array([2.0, -1.0])

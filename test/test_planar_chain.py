@@ -7,10 +7,12 @@ import pytest
 from cr_sim.models.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
 from cr_sim.models.planar_chain import (
     PlanarChain,
+    coriolis_matrix,
     forward_dynamics,
     mass_matrix,
     rnea,
     solve_spd,
+    tool_jacobian_dot,
     tool_kinematics,
 )
 
@@ -84,3 +86,15 @@ def test_cholesky_solve():
     A = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]])
     b = np.array([1.0, -2.0, 0.5])
     assert np.abs(A @ solve_spd(A, b) - b).max() < 1e-14
+
+
+def test_coriolis_matrix_and_jacobian_derivative_match_pinocchio(arm):
+    chain = PlanarChain.from_model(arm.model, "tool0").chain
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        q, v = rng.uniform(-3, 3, size=(2, 2))
+        assert np.abs(coriolis_matrix(chain, q, v) - arm.coriolis_matrix(q, v)).max() < 1e-12
+        pin.computeJointJacobiansTimeVariation(arm.model, arm.data, q, v)
+        J_dot = pin.getFrameJacobianTimeVariation(arm.model, arm.data, arm.tool,
+                                                  pin.LOCAL_WORLD_ALIGNED)[:2]
+        assert np.abs(tool_jacobian_dot(chain, q, v) - J_dot).max() < 1e-12

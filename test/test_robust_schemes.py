@@ -27,6 +27,7 @@ from cr_control.schemes.task_space import ArmTaskSpace, inverse_2x2
 from cr_control.tools.config_files import params_yaml
 from cr_control.tools.offline import OfflineRun, run_scheme
 from cr_sim.models.arm_model import TwoLinkArm
+from cr_sim.models.planar_chain import HEADER, PER_LINK
 from cr_sim.plants.registry import make_plant
 
 DELTA = 0.05  # boundary layer of both schemes (3.5.2, 3.5.3)
@@ -310,12 +311,19 @@ def _model_calls_during_control(monkeypatch, scheme: str, overrides: dict) -> in
 
 
 def test_nn_controller_uses_no_dynamics_model(monkeypatch):
-    """No call of M, C, G (Pinocchio or the arm model) in the NN control law; the same
-    spy does see the robust scheme's model calls, and the NN's optional true norms."""
+    """No call of M, C, G (Pinocchio, the arm model or the task-space model) from the NN
+    control law; the same spy does see the NN's optional true norms. The compiled control
+    kernel gets the geometry only: its chain has no masses, inertias or gravity, while the
+    robust scheme's carries its (wrong) inertial model."""
     assert _model_calls_during_control(monkeypatch, "nn_adaptive_impedance",
                                        {"publish_true_norms": False}) == 0
     assert _model_calls_during_control(monkeypatch, "nn_adaptive_impedance", {}) > 0
-    assert _model_calls_during_control(monkeypatch, "robust_adaptive_impedance", {}) > 0
+    nn, robust = make_controller("nn_adaptive_impedance"), make_controller("robust_adaptive_impedance")
+    inertial = slice(HEADER + 4, None, PER_LINK)
+    assert np.all(nn.kinematic_chain[1:3] == 0) and np.all(nn.kinematic_chain[inertial] == 0)
+    assert np.all(nn.kinematic_chain[inertial.start + 1::PER_LINK] == 0)
+    assert np.allclose(robust.task.chain[inertial], [0.05, 0.05])
+    assert np.allclose(nn.kinematic_chain[HEADER:HEADER + 2], robust.task.chain[HEADER:HEADER + 2])
 
 
 def test_nn_commands_do_not_depend_on_the_inertial_model():

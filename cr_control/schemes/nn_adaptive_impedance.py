@@ -15,7 +15,9 @@ Compensator, s, r_eq, boundary layer and impedance adaptation (3.82-3.85): as in
 (the centres are the same), so the networks are weight matrices (nodes x elements),
 evaluated and updated with one matrix product each. Initial weights are zero. The weights
 are integrated with the dt of each cycle (the update uses this cycle's s, then the
-estimates are formed), like the impedance estimates.
+estimates are formed), like the impedance estimates. The control kernel receives the arm's
+kinematics only (a chain with zero masses, inertias and gravity), so it cannot use a
+dynamics model.
 
 Centres (remark 3.4.1): an even grid over the joint positions and velocities of the
 desired motion (3.93) through the arm's inverse kinematics (branch sin(theta2) < 0, the one
@@ -41,15 +43,25 @@ import dataclasses
 import math
 
 import numpy as np
+from numba import njit
 
+from cr_control.core.linalg import matvec, spectral_norm_2x2
+from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError
-from cr_control.schemes.adaptive_impedance import ESTIMATE_FIELDS, impedance_parameters
+from cr_control.schemes import rbf_network
+from cr_control.schemes.controller import ControlOutput
+from cr_control.schemes.impedance_adaptation import ESTIMATE_FIELDS, impedance_parameters
 from cr_control.schemes.sliding_impedance import (
+    SCHEME_GAINS_AT,
+    SCHEME_STATE_AT,
     SLIDING_STATUS_FIELDS,
     SlidingImpedanceController,
+    sliding_back,
+    sliding_front,
     sliding_parameters,
 )
-from cr_control.schemes.task_space import TASK_SPACE_PARAMETERS, TaskState, inverse_2x2
+from cr_control.schemes.task_space import TASK_SPACE_PARAMETERS, ArmTaskSpace, inverse_2x2
+from cr_sim.models.planar_chain import kinematics_only
 
 NN_STATUS_FIELDS = ["M_r_norm", "M_r_hat_norm", "C_r_norm", "C_r_hat_norm", "G_r_norm",
                     "G_r_hat_norm"]
@@ -75,6 +87,9 @@ NN_PARAMETERS = [
           "model beside the estimates (for plots only; not used in control).", "bool"),
 ]
 
+_N_SLIDING = len(SLIDING_STATUS_FIELDS)
+NN_GAINS = Layout(d=1, Gamma_M=1, Gamma_C=1, Gamma_G=1, inv_variance=1)
+
 
 def _inertial_model_note(specs: list[Param]) -> list[Param]:
     """TASK_SPACE_PARAMETERS with the inertial ones marked as used for the true norms only."""
@@ -85,14 +100,6 @@ def _inertial_model_note(specs: list[Param]) -> list[Param]:
                                     + " Used only for the published true norms.")
         out.append(p)
     return out
-
-
-def spectral_norm_2x2(A: np.ndarray) -> float:
-    """Largest singular value of a 2x2 matrix, closed form (an SVD costs ~10x more)."""
-    a, b, c, d = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
-    frob2 = a * a + b * b + c * c + d * d
-    det = a * d - b * c
-    return math.sqrt(0.5 * (frob2 + math.sqrt(max(frob2 * frob2 - 4.0 * det * det, 0.0))))
 
 
 def desired_joint_ranges(task, samples: int = 400) -> tuple[np.ndarray, np.ndarray]:
@@ -109,23 +116,39 @@ def desired_joint_ranges(task, samples: int = 400) -> tuple[np.ndarray, np.ndarr
     return rows.min(axis=0), rows.max(axis=0)
 
 
-def grid_centres(low: np.ndarray, high: np.ndarray, per_dim: int) -> np.ndarray:
-    """Centres evenly spread over the box [low, high], per_dim per dimension (rows)."""
-    axes = [np.linspace(lo, hi, per_dim) if per_dim > 1 else np.array([(lo + hi) / 2])
-            for lo, hi in zip(low, high, strict=True)]
-    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low))
-
-
-class GaussianLayer:
-    """Activations xi_i(x) = exp(-|x - mu_i|^2 / sigma^2) (3.69) of fixed centres mu_i."""
-
-    def __init__(self, centres: np.ndarray, variance: float):
-        self.centres = np.ascontiguousarray(centres)
-        self.inv_variance = 1.0 / variance
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        diff = self.centres - x
-        return np.exp(-self.inv_variance * np.einsum("ij,ij->i", diff, diff))
+@njit(cache=True)
+def nn_adaptive_impedance_cycle(kinematic_chain, gains, state, centres_q, centres_qv, t, dt,
+                                q, v, force, n_status, extras_at):
+    """One cycle of (3.76) with the weight laws (3.79-3.81): (tau, reference, status)."""
+    (r_d, v_d, a_d, f_d, r, r_dot, J, _, e, e_dot, s, v_eq, a_eq) = sliding_front(
+        kinematic_chain, gains, state, t, dt, q, v)
+    own = gains[SCHEME_GAINS_AT:]
+    d, Gamma_M, Gamma_C, Gamma_G, inv_variance = own[0], own[1], own[2], own[3], own[4]
+    n_q, n_qv = centres_q.shape[0], centres_qv.shape[0]
+    weights = state[SCHEME_STATE_AT:]
+    theta_M = weights[:4 * n_q].reshape((n_q, 4))   # columns: M_r 11, 12, 21, 22
+    theta_C = weights[4 * n_q:4 * (n_q + n_qv)].reshape((n_qv, 4))
+    theta_G = weights[4 * (n_q + n_qv):].reshape((n_q, 2))
+    qv = np.empty(4)
+    qv[:2], qv[2:] = q, v
+    xi_q = rbf_network.activations(centres_q, inv_variance, q)
+    xi_qv = rbf_network.activations(centres_qv, inv_variance, qv)
+    if dt > 0.0:
+        rbf_network.adapt(theta_M, xi_q, Gamma_M * dt, np.outer(s, a_eq).ravel())   # 3.79
+        rbf_network.adapt(theta_C, xi_qv, Gamma_C * dt, np.outer(s, v_eq).ravel())  # 3.80
+        rbf_network.adapt(theta_G, xi_q, Gamma_G * dt, s)                            # 3.81
+    M_hat = rbf_network.output(xi_q, theta_M).reshape((2, 2))
+    C_hat = rbf_network.output(xi_qv, theta_C).reshape((2, 2))
+    G_hat = rbf_network.output(xi_q, theta_G)
+    model_terms = matvec(M_hat, a_eq) + matvec(C_hat, v_eq) + G_hat
+    tau, reference, status = sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d,
+                                          f_d, r, r_dot, J, e, s, n_status, extras_at)
+    k = extras_at + _N_SLIDING
+    status[k:k + 6] = np.nan   # the true norms: filled by the node's Python side if wanted
+    status[k + 1] = spectral_norm_2x2(M_hat)
+    status[k + 3] = spectral_norm_2x2(C_hat)
+    status[k + 5] = math.hypot(G_hat[0], G_hat[1])
+    return tau, reference, status
 
 
 class NNAdaptiveImpedanceController(SlidingImpedanceController):
@@ -139,53 +162,33 @@ class NNAdaptiveImpedanceController(SlidingImpedanceController):
                                          B0=110.0, c0=[-4.0, 4.0], Q=4.0, Q_bc_star=8.0,
                                          Q_a_star=4.0))
     extra_status_fields = SLIDING_STATUS_FIELDS + NN_STATUS_FIELDS + ESTIMATE_FIELDS
+    SCHEME_GAINS = NN_GAINS
 
     def __init__(self, values: dict):
-        super().__init__(values)
-        per_dim = self.values["rbf_centres_per_dim"]
+        per_dim = values["rbf_centres_per_dim"]
         if per_dim < 1:
             raise ParameterError(f"rbf_centres_per_dim must be >= 1, got {per_dim}")
-        low, high = desired_joint_ranges(self.task)
-        margin = np.array([self.values["rbf_q_margin"]] * 2 + [self.values["rbf_qdot_margin"]] * 2)
+        low, high = desired_joint_ranges(ArmTaskSpace(values))
+        margin = np.array([values["rbf_q_margin"]] * 2 + [values["rbf_qdot_margin"]] * 2)
         low, high = low - margin, high + margin
-        variance = self.values["rbf_variance"]
-        self.xi_q = GaussianLayer(grid_centres(low[:2], high[:2], per_dim), variance)
-        self.xi_qv = GaussianLayer(grid_centres(low, high, per_dim), variance)
-        n_q, n_qv = len(self.xi_q.centres), len(self.xi_qv.centres)
-        # Columns: row-major elements (11, 12, 21, 22) of M_r, C_r; (1, 2) of G_r.
-        self.theta_M = np.zeros((n_q, 4))
-        self.theta_C = np.zeros((n_qv, 4))
-        self.theta_G = np.zeros((n_q, 2))
-        self.M_hat = np.zeros((2, 2))
-        self.C_hat = np.zeros((2, 2))
-        self.G_hat = np.zeros(2)
-        self._qv = np.empty(4)
+        self.centres_q = rbf_network.grid_centres(low[:2], high[:2], per_dim)
+        self.centres_qv = rbf_network.grid_centres(low, high, per_dim)
+        n_q, n_qv = len(self.centres_q), len(self.centres_qv)
+        # Initial weights are zero: M_r, C_r (4 elements each), G_r (2).
+        super().__init__(values, scheme_state=np.zeros(4 * n_q + 4 * n_qv + 2 * n_q))
+        self.kinematic_chain = kinematics_only(self.task.chain)
+        self._norms_at = self._extras_at + len(SLIDING_STATUS_FIELDS)
 
-    def model_terms(self, dt: float, q: np.ndarray, v: np.ndarray, ts: TaskState,
-                    s: np.ndarray, v_eq: np.ndarray, a_eq: np.ndarray) -> np.ndarray:
-        """Adapt the weights (3.79-3.81) by dt, then M_r^ r_eq'' + C_r^ r_eq' + G_r^ (3.73-3.75)."""
-        values = self.values
-        self._qv[:2], self._qv[2:] = q, v
-        xi_q, xi_qv = self.xi_q(q), self.xi_qv(self._qv)
-        if dt > 0.0:
-            self.theta_M += np.outer(xi_q, (values["Gamma_M"] * dt) * np.outer(s, a_eq).ravel())
-            self.theta_C += np.outer(xi_qv, (values["Gamma_C"] * dt) * np.outer(s, v_eq).ravel())
-            self.theta_G += np.outer(xi_q, (values["Gamma_G"] * dt) * s)
-        self.M_hat = (xi_q @ self.theta_M).reshape(2, 2)
-        self.C_hat = (xi_qv @ self.theta_C).reshape(2, 2)
-        self.G_hat = xi_q @ self.theta_G
-        return self.M_hat @ a_eq + self.C_hat @ v_eq + self.G_hat
+    def scheme_gain_values(self) -> dict:
+        return {**self.values, "inv_variance": 1.0 / self.values["rbf_variance"]}
 
-    def switching_gain(self, v_eq: np.ndarray, a_eq: np.ndarray) -> float:
-        """The constant d of 3.76 (3.78)."""
-        return self.values["d"]
-
-    def scheme_status(self, q: np.ndarray, v: np.ndarray, ts: TaskState) -> np.ndarray:
-        """|M_r|, |M_r^|, |C_r|, |C_r^| (largest singular values), |G_r|, |G_r^| (Euclidean)."""
+    def compute(self, t, dt, q, v, force) -> ControlOutput:
+        out = ControlOutput(*nn_adaptive_impedance_cycle(
+            self.kinematic_chain, self.gains, self.internal, self.centres_q, self.centres_qv,
+            t, dt, q, v, force, self._n_status, self._extras_at))
         if self.values["publish_true_norms"]:
-            M_r, C_r, G_r = self.task.dynamics(q, v, ts)
-            true = (spectral_norm_2x2(M_r), spectral_norm_2x2(C_r), math.hypot(*G_r))
-        else:
-            true = (np.nan, np.nan, np.nan)
-        return np.array([true[0], spectral_norm_2x2(self.M_hat), true[1],
-                         spectral_norm_2x2(self.C_hat), true[2], math.hypot(*self.G_hat)])
+            M_r, C_r, G_r = self.task.dynamics(q, v, self.task.state(q, v))
+            k = self._norms_at
+            out.status[k], out.status[k + 2] = spectral_norm_2x2(M_r), spectral_norm_2x2(C_r)
+            out.status[k + 4] = math.hypot(G_r[0], G_r[1])
+        return out

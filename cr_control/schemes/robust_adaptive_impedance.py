@@ -20,16 +20,22 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import numpy as np
+from numba import njit
 
+from cr_control.core.linalg import matvec
+from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
-from cr_control.schemes.adaptive_impedance import ESTIMATE_FIELDS, impedance_parameters
+from cr_control.schemes.controller import ControlOutput
+from cr_control.schemes.impedance_adaptation import ESTIMATE_FIELDS, impedance_parameters
 from cr_control.schemes.sliding_impedance import (
+    SCHEME_GAINS_AT,
     SLIDING_STATUS_FIELDS,
     SlidingImpedanceController,
+    sliding_back,
+    sliding_front,
     sliding_parameters,
 )
-from cr_control.schemes.task_space import TASK_SPACE_PARAMETERS, TaskState
+from cr_control.schemes.task_space import TASK_SPACE_PARAMETERS, task_dynamics
 
 #: The controller's (wrong) estimate of the links' inertial parameters (section 3.5.2).
 _WRONG_MODEL = {
@@ -60,6 +66,25 @@ UNCERTAINTY_PARAMETERS = [
 ]
 
 
+ROBUST_GAINS = Layout(delta_M=1, delta_C=1, delta_G=1, delta_f=1)
+
+
+@njit(cache=True)
+def robust_adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, n_status,
+                                    extras_at):
+    """One cycle of (3.48): (tau, reference values, status values)."""
+    (r_d, v_d, a_d, f_d, r, r_dot, J, J_inv, e, e_dot, s, v_eq, a_eq) = sliding_front(
+        chain, gains, state, t, dt, q, v)
+    delta_M, delta_C, delta_G, delta_f = (gains[SCHEME_GAINS_AT], gains[SCHEME_GAINS_AT + 1],
+                                          gains[SCHEME_GAINS_AT + 2], gains[SCHEME_GAINS_AT + 3])
+    d = (delta_M * math.hypot(a_eq[0], a_eq[1]) + delta_C * math.hypot(v_eq[0], v_eq[1])
+         + delta_G + delta_f)                                                      # 3.51
+    M_r, C_r, G_r = task_dynamics(chain, q, v, J_inv)
+    model_terms = matvec(M_r, a_eq) + matvec(C_r, v_eq) + G_r
+    return sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J,
+                        e, s, n_status, extras_at)
+
+
 class RobustAdaptiveImpedanceController(SlidingImpedanceController):
     """Robust adaptive impedance control (3.48) with the section 3.5.2 gains."""
 
@@ -70,15 +95,9 @@ class RobustAdaptiveImpedanceController(SlidingImpedanceController):
                   + impedance_parameters(A_m=20.0, B_m=400.0, P1=1.25, P2=6.56, A0=45.0,
                                          B0=30.0, c0=[1.0, 1.0], Q=5.0, Q_bc_star=1.5))
     extra_status_fields = SLIDING_STATUS_FIELDS + ESTIMATE_FIELDS
+    SCHEME_GAINS = ROBUST_GAINS
 
-    def model_terms(self, dt: float, q: np.ndarray, v: np.ndarray, ts: TaskState,
-                    s: np.ndarray, v_eq: np.ndarray, a_eq: np.ndarray) -> np.ndarray:
-        """M_r^ r_eq'' + C_r^ r_eq' + G_r^ from the controller's (wrong) arm model."""
-        M_r, C_r, G_r = self.task.dynamics(q, v, ts)
-        return M_r @ a_eq + C_r @ v_eq + G_r
-
-    def switching_gain(self, v_eq: np.ndarray, a_eq: np.ndarray) -> float:
-        """d = dM |r_eq''| + dC |r_eq'| + dG + df (3.51)."""
-        v = self.values
-        return (v["delta_M"] * math.hypot(*a_eq) + v["delta_C"] * math.hypot(*v_eq)
-                + v["delta_G"] + v["delta_f"])
+    def compute(self, t, dt, q, v, force) -> ControlOutput:
+        return ControlOutput(*robust_adaptive_impedance_cycle(
+            self.task.chain, self.gains, self.internal, t, dt, q, v, force, self._n_status,
+            self._extras_at))

@@ -44,14 +44,22 @@ Discretisation: z is integrated by explicit Euler with the dt of each cycle, z(0
 
 from __future__ import annotations
 
-from abc import abstractmethod
-
 import numpy as np
+from numba import njit
 
+from cr_control.core.linalg import inv2, matmul, matvec, tmatvec
+from cr_control.core.packing import Layout, block, block2
 from cr_control.core.parameters import Param, matrix
-from cr_control.schemes.adaptive_impedance import ImpedanceAdaptation, task_space_status
-from cr_control.schemes.controller import Controller, ControlOutput
-from cr_control.schemes.task_space import ArmTaskSpace, TaskState, inverse_2x2
+from cr_control.schemes import impedance_adaptation as impedance
+from cr_control.schemes.controller import Controller
+from cr_control.schemes.impedance_adaptation import ImpedanceAdaptation, impedance_update
+from cr_control.schemes.references import REFERENCE, packed_reference
+from cr_control.schemes.task_space import (
+    ArmTaskSpace,
+    reference_values,
+    task_space_status,
+    task_state,
+)
 
 #: Status fields of the sliding-mode part, before the scheme's own and ESTIMATE_FIELDS.
 SLIDING_STATUS_FIELDS = ["s_x", "s_y", "z_x", "z_y", "d"]
@@ -72,16 +80,37 @@ def sliding_parameters(D: float, K: float, K_s: float, boundary_layer: float) ->
     ]
 
 
-def boundary_layer_sign(s: np.ndarray, delta: float) -> np.ndarray:
+@njit(cache=True)
+def boundary_layer_sign(s, delta):
     """sgn(s) with the boundary layer of remark 3.3.1, per component: clip(s/Delta, -1, 1)."""
-    return np.clip(s / delta, -1.0, 1.0)
+    out = np.empty(s.shape[0])
+    for i in range(s.shape[0]):
+        out[i] = min(1.0, max(-1.0, s[i] / delta))
+    return out
+
+
+@njit(cache=True)
+def compensator_update(D, K_1, K_2, d_sign, z, z_dot, dt, e, e_dot, v_d, a_d, A_hat, B_hat,
+                       c_hat):
+    """Advance z by dt (Euler, with the z' of the last cycle), set z' (3.40) with the gains
+    3.43-3.45 for the current estimates, and return s (3.41), r_eq' (3.49), r_eq'' (3.50)."""
+    z += dt * z_dot
+    K_c = inv2(K_2)                                            # 3.45
+    D_K2inv = matmul(D, K_c)
+    K_v = matmul(K_c, A_hat + matmul(K_2, D_K2inv) - K_1)      # 3.43
+    K_p = matmul(K_c, B_hat) + matmul(D_K2inv, K_1)            # 3.44
+    z_dot[:] = (d_sign * matvec(D, z) + matvec(K_v, e_dot) + matvec(K_p, e)
+                - matvec(K_c, c_hat))
+    K1_e, K2_z = matvec(K_1, e), matvec(K_2, z)
+    s = e_dot + K1_e + K2_z
+    return s, v_d + K1_e + K2_z, a_d + matvec(K_1, e_dot) + matvec(K_2, z_dot)
 
 
 class SlidingCompensator:
-    """Dynamic compensator (3.40) with the gains (3.43-3.45), s (3.41) and r_eq (3.49-3.50)."""
+    """Python entry point of :func:`compensator_update` (z, z' kept here)."""
 
     #: z' = D_SIGN * D z + ...: +1 is the convention 3.42-3.46 are derived with (the
-    #: printed 3.40 corresponds to -1; module docstring).
+    #: printed 3.40 corresponds to -1; module docstring). Read when the gains are packed.
     D_SIGN = 1.0
 
     def __init__(self, values: dict):
@@ -89,73 +118,119 @@ class SlidingCompensator:
         self.z = np.zeros(2)
         self.z_dot = np.zeros(2)
 
-    def gains(self, A_hat: np.ndarray,
-              B_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """K_v, K_p, K_c of 3.43-3.45 for the current impedance estimates."""
+    def update(self, dt, e, e_dot, v_d, a_d, adaptation):
+        """s, r_eq', r_eq'' after advancing by dt (see :func:`compensator_update`)."""
         v = self.values
-        D, K_1 = v["D"], v["K_1"]
-        K_c = inverse_2x2(v["K_2"])
-        D_K2inv = D @ K_c
-        K_v = K_c @ (A_hat + v["K_2"] @ D_K2inv - K_1)
-        K_p = K_c @ B_hat + D_K2inv @ K_1
-        return K_v, K_p, K_c
+        return compensator_update(v["D"], v["K_1"], v["K_2"], self.D_SIGN, self.z, self.z_dot,
+                                  dt, e, e_dot, v_d, a_d, adaptation.A_hat, adaptation.B_hat,
+                                  adaptation.c_hat)
 
-    def update(self, dt: float, e: np.ndarray, e_dot: np.ndarray, v_d: np.ndarray,
-               a_d: np.ndarray,
-               adaptation: ImpedanceAdaptation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Advance z by dt (Euler) and return s (3.41), r_eq' (3.49) and r_eq'' (3.50)."""
-        v = self.values
-        self.z = self.z + dt * self.z_dot
-        K_v, K_p, K_c = self.gains(adaptation.A_hat, adaptation.B_hat)
-        self.z_dot = (self.D_SIGN * (v["D"] @ self.z) + K_v @ e_dot + K_p @ e
-                      - K_c @ adaptation.c_hat)
-        K1_e = v["K_1"] @ e
-        K2_z = v["K_2"] @ self.z
-        s = e_dot + K1_e + K2_z
-        return s, v_d + K1_e + K2_z, a_d + v["K_1"] @ e_dot + v["K_2"] @ self.z_dot
+
+#: Packed gains of the sliding part (names = parameter names; d_sign = D_SIGN).
+SLIDING_GAINS = Layout(D=(2, 2), K_1=(2, 2), K_2=(2, 2), K_s=(2, 2), boundary_layer=1, d_sign=1)
+#: Internal state of the compensator.
+SLIDING_STATE = Layout(z=2, z_dot=2)
+_D, _K1, _K2, _KS = (SLIDING_GAINS.offset(n) for n in ("D", "K_1", "K_2", "K_s"))
+_DELTA, _DSIGN = SLIDING_GAINS.offset("boundary_layer"), SLIDING_GAINS.offset("d_sign")
+
+#: Every sliding scheme's packed gains start with these blocks, its state with these.
+_R = REFERENCE.size
+_I = _R + impedance.GAINS.size
+_S = _I + SLIDING_GAINS.size
+_IS = impedance.STATE.size
+_SS = _IS + SLIDING_STATE.size
+_EST = impedance.ESTIMATES
+_A_HAT, _B_HAT, _C_HAT = (impedance.STATE.offset(n) for n in ("A_hat", "B_hat", "c_hat"))
+_N_EST = len(impedance.ESTIMATE_FIELDS)
+
+
+@njit(cache=True)
+def sliding_front(chain, gains, state, t, dt, q, v):
+    """The part of (3.48, 3.76) before the model terms: reference, task state, impedance
+    estimates, compensator. Returns (r_d, v_d, a_d, f_d, r, r', J, e, e', s, r_eq', r_eq'')."""
+    r_d, v_d, a_d, f_d = packed_reference(gains[:_R], t)
+    r, r_dot, J, J_inv, _ = task_state(chain, q, v)
+    e, e_dot = r_d - r, v_d - r_dot
+    impedance_state = state[:_IS]
+    impedance_update(gains[_R:_I], impedance_state, e, e_dot, dt)
+    sliding = gains[_I:_S]
+    s, v_eq, a_eq = compensator_update(
+        block2(sliding, _D), block2(sliding, _K1), block2(sliding, _K2), sliding[_DSIGN],
+        state[_IS:_IS + 2], state[_IS + 2:_SS], dt, e, e_dot, v_d, a_d,
+        block2(impedance_state, _A_HAT), block2(impedance_state, _B_HAT),
+        block(impedance_state, _C_HAT, 2))
+    return r_d, v_d, a_d, f_d, r, r_dot, J, J_inv, e, e_dot, s, v_eq, a_eq
+
+
+@njit(cache=True)
+def sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J, e, s,
+                 n_status, extras_at):
+    """u = model_terms + K_s s + d sat(s/Delta) - f, tau = J^T u (3.48, 3.76); returns
+    (tau, reference values, status with the sliding fields and the estimates filled)."""
+    sliding = gains[_I:_S]
+    f = force[:2]
+    u = (model_terms + matvec(block2(sliding, _KS), s)
+         + d * boundary_layer_sign(s, sliding[_DELTA]) - f)
+    tau = tmatvec(J, u)
+    status = task_space_status(n_status, r, r_dot, f, e, f_d - f, tau)
+    k = n_status - _N_EST
+    status[extras_at:extras_at + 2] = s
+    status[extras_at + 2:extras_at + 4] = state[_IS:_IS + 2]
+    status[extras_at + 4] = d
+    status[k:] = state[_EST]
+    return tau, reference_values(r_d, v_d, a_d, f_d), status
+
+
+def sliding_gains_layout(scheme_gains: Layout) -> Layout:
+    """A sliding scheme's packed gains: reference, impedance, sliding, then its own block."""
+    return Layout(reference=_R, impedance=impedance.GAINS.size, sliding=SLIDING_GAINS.size,
+                  scheme=scheme_gains.size)
 
 
 class SlidingImpedanceController(Controller):
-    """tau = J^T (model_terms + K_s s + d sat(s/Delta) - f) (3.48, 3.76).
+    """Shared set-up of the schemes tau = J^T (model terms + K_s s + d sat(s/Delta) - f)
+    (3.48, 3.76): packed gains (reference, impedance, sliding, the scheme's ``SCHEME_GAINS``)
+    and internal state (impedance, compensator, the scheme's ``scheme_state_size`` values).
+    Status fields: topics.STATUS_FIELDS, SLIDING_STATUS_FIELDS, the scheme's own, then
+    ESTIMATE_FIELDS."""
 
-    Subclasses give the estimate of M_r r_eq'' + C_r r_eq' + G_r (:meth:`model_terms`),
-    the switching gain d (:meth:`switching_gain`) and their extra status values.
-    Status fields: topics.STATUS_FIELDS, SLIDING_STATUS_FIELDS, ``scheme_status_fields``,
-    then ESTIMATE_FIELDS.
-    """
+    SCHEME_GAINS = Layout()
 
-    def __init__(self, values: dict):
+    def __init__(self, values: dict, scheme_state: np.ndarray | None = None):
         super().__init__(values)
         self.task = ArmTaskSpace(self.values)
-        self.adaptation = ImpedanceAdaptation(self.values)
-        self.compensator = SlidingCompensator(self.values)
+        self.GAINS = sliding_gains_layout(self.SCHEME_GAINS)
+        self.gains = np.zeros(self.GAINS.size)
+        self.pack_gains()
+        extra = np.zeros(0) if scheme_state is None else scheme_state
+        self.internal = np.concatenate([impedance.initial_state(self.values),
+                                        np.zeros(SLIDING_STATE.size), extra])
+        self.adaptation = ImpedanceAdaptation(self.internal[:_IS])
+        self._n_status = len(self.status_fields) - 1
+        self._extras_at = self._n_status - len(self.extra_status_fields)
 
-    @abstractmethod
-    def model_terms(self, dt: float, q: np.ndarray, v: np.ndarray, ts: TaskState,
-                    s: np.ndarray, v_eq: np.ndarray, a_eq: np.ndarray) -> np.ndarray:
-        """The scheme's estimate of M_r r_eq'' + C_r r_eq' + G_r (may adapt, by dt)."""
+    @property
+    def z(self) -> np.ndarray:
+        """The compensator state z (3.40)."""
+        return self.internal[_IS:_IS + 2]
 
-    @abstractmethod
-    def switching_gain(self, v_eq: np.ndarray, a_eq: np.ndarray) -> float:
-        """d of d sgn(s)."""
+    def pack_gains(self) -> None:
+        """Copy the current parameter values into the packed gains the kernels read."""
+        REFERENCE.pack(self.values, self.GAINS.view(self.gains, "reference"))
+        impedance.GAINS.pack(self.values, self.GAINS.view(self.gains, "impedance"))
+        SLIDING_GAINS.pack({**self.values, "d_sign": SlidingCompensator.D_SIGN},
+                           self.GAINS.view(self.gains, "sliding"))
+        self.SCHEME_GAINS.pack(self.scheme_gain_values(), self.GAINS.view(self.gains, "scheme"))
 
-    def scheme_status(self, q: np.ndarray, v: np.ndarray, ts: TaskState) -> np.ndarray:
-        """Values of the scheme's own status fields (between d and the estimates)."""
-        return np.zeros(0)
+    def scheme_gain_values(self) -> dict:
+        """Values of the scheme's own packed gains (default: its parameters by name)."""
+        return self.values
 
-    def compute(self, t, dt, q, v, force) -> ControlOutput:
-        values = self.values
-        f = force[:2]
-        r_d, v_d, a_d = self.task.reference(t)
-        f_d = values["desired_force"]
-        ts = self.task.state(q, v)
-        e, e_dot = r_d - ts.r, v_d - ts.r_dot
-        self.adaptation.update(e, e_dot, dt)
-        s, v_eq, a_eq = self.compensator.update(dt, e, e_dot, v_d, a_d, self.adaptation)
-        d = self.switching_gain(v_eq, a_eq)
-        u = (self.model_terms(dt, q, v, ts, s, v_eq, a_eq) + values["K_s"] @ s
-             + d * boundary_layer_sign(s, values["boundary_layer"]) - f)
-        tau = ts.J.T @ u
-        status = task_space_status(ts, f, e, f_d - f, tau, s, self.compensator.z, np.array([d]),
-                                   self.scheme_status(q, v, ts), self.adaptation.estimates())
-        return ControlOutput(tau, np.concatenate([r_d, v_d, a_d, f_d]), status)
+    def set_parameter(self, name, value) -> None:
+        super().set_parameter(name, value)
+        self.pack_gains()
+
+
+#: Where a sliding scheme's own gains and state begin in its packed vectors.
+SCHEME_GAINS_AT = _S
+SCHEME_STATE_AT = _SS

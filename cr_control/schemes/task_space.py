@@ -9,11 +9,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
+from numba import njit
 
+from cr_control.core.linalg import inv2, matmul, matvec, tmatvec
 from cr_control.core.parameters import Param
 from cr_control.schemes.references import CHAPTER3_REFERENCE, chapter3_reference
 from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
+from cr_sim.models.planar_chain import (
+    PlanarChain,
+    coriolis_matrix,
+    mass_matrix,
+    rnea,
+    tool_jacobian_dot,
+    tool_kinematics,
+)
 
 #: The controller's model of the arm (thesis values; the robust schemes use wrong ones).
 ARM_MODEL_PARAMETERS = [
@@ -41,7 +50,7 @@ def inverse_2x2(A: np.ndarray) -> np.ndarray:
 
 @dataclass
 class TaskState:
-    """End-effector state of one cycle: r, r', J(q), J'(q, q') q'."""
+    """End-effector state of one cycle: r, r', J(q), J(q)^-1, J'(q, q') q'."""
 
     r: np.ndarray
     r_dot: np.ndarray
@@ -59,36 +68,78 @@ def arm_from_values(values: dict) -> TwoLinkArm:
     ))
 
 
+# -- compiled kernels (numba): the chain is the packed PlanarChain of the controller's model --
+@njit(cache=True)
+def task_state(chain, q, v):
+    """(r, r' = J q', J, J^-1, J' q') at (q, q')."""
+    r, J, jdot_v = tool_kinematics(chain, q, v)
+    return r, matvec(J, v), J, inv2(J), jdot_v
+
+
+@njit(cache=True)
+def torque_for_acceleration(chain, q, v, J, J_inv, jdot_v, a, f):
+    """tau = J^T (M_r a + C_r r' + G_r - f), evaluated in joint space as
+    M J^-1 (a - J' q') + C q' + G - J^T f (one recursive Newton-Euler pass)."""
+    qdd = matvec(J_inv, a - jdot_v)
+    return rnea(chain, q, v, qdd, True) - tmatvec(J, f)
+
+
+@njit(cache=True)
+def task_dynamics(chain, q, v, J_inv):
+    """M_r, C_r, G_r of (3.2) at (q, q'): J^-T M J^-1, J^-T (M d(J^-1)/dt + C J^-1), J^-T G,
+    with d(J^-1)/dt = -J^-1 J' J^-1 and C in Christoffel form."""
+    M = mass_matrix(chain, q)
+    C = coriolis_matrix(chain, q, v)
+    zero = np.zeros(q.shape[0])
+    G = rnea(chain, q, zero, zero, True)
+    J_inv_T = J_inv.T.copy()
+    J_inv_dot = -matmul(matmul(J_inv, tool_jacobian_dot(chain, q, v)), J_inv)
+    M_r = matmul(matmul(J_inv_T, M), J_inv)
+    C_r = matmul(J_inv_T, matmul(M, J_inv_dot) + matmul(C, J_inv))
+    return M_r, C_r, matvec(J_inv_T, G)
+
+
 class ArmTaskSpace:
-    """The controller's model of the arm seen from the end effector, and its reference."""
+    """The controller's model of the arm seen from the end effector, and its reference.
+
+    ``chain`` (packed, for the kernels) comes from the Pinocchio model of the URDF with the
+    ``model_*`` parameters; the methods are Python entry points to the kernels.
+    """
 
     def __init__(self, values: dict):
         self.arm = arm_from_values(values)
+        self.chain = PlanarChain.from_model(self.arm.model, "tool0").chain
         self.reference = chapter3_reference(values)
-        self._model, self._data, self._tool = self.arm.model, self.arm.data, self.arm.tool
 
     def state(self, q: np.ndarray, v: np.ndarray) -> TaskState:
-        """r, r' = J q', J and J' q' at (q, q')."""
-        r, J, jdot_v = self.arm.kinematics(q, v)
-        return TaskState(r, J @ v, J, inverse_2x2(J), jdot_v)
+        """r, r' = J q', J, J^-1 and J' q' at (q, q')."""
+        return TaskState(*task_state(self.chain, q, v))
 
     def torque_for_acceleration(self, q: np.ndarray, v: np.ndarray, ts: TaskState,
                                 a: np.ndarray, force: np.ndarray) -> np.ndarray:
-        """tau = J^T (M_r a + C_r r' + G_r - f), evaluated in joint space as
-        M J^-1 (a - J' q') + C q' + G - J^T f."""
-        qdd = ts.J_inv @ (a - ts.jdot_v)
-        return pin.rnea(self._model, self._data, q, v, qdd) - ts.J.T @ force
+        """tau = J^T (M_r a + C_r r' + G_r - f)."""
+        return torque_for_acceleration(self.chain, q, v, ts.J, ts.J_inv, ts.jdot_v, a, force)
 
     def dynamics(self, q: np.ndarray, v: np.ndarray,
                  ts: TaskState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """M_r, C_r, G_r of (3.2) at (q, q')."""
-        model, data = self._model, self._data
-        M = self.arm.mass_matrix(q)
-        C = pin.computeCoriolisMatrix(model, data, q, v)
-        G = pin.computeGeneralizedGravity(model, data, q)
-        pin.computeJointJacobiansTimeVariation(model, data, q, v)
-        J_dot = pin.getFrameJacobianTimeVariation(model, data, self._tool,
-                                                  pin.LOCAL_WORLD_ALIGNED)[:2, :]
-        J_inv, J_inv_T = ts.J_inv, ts.J_inv.T
-        J_inv_dot = -J_inv @ J_dot @ J_inv
-        return J_inv_T @ M @ J_inv, J_inv_T @ (M @ J_inv_dot + C @ J_inv), J_inv_T @ G
+        return task_dynamics(self.chain, q, v, ts.J_inv)
+
+
+@njit(cache=True)
+def task_space_status(n_status, r, r_dot, f, e, f_err, tau):
+    """A status vector (topics.STATUS_FIELDS after ``stamp``, then the scheme's own fields)
+    with the task-space values filled in; timing, ``held`` and the extras left at 0."""
+    status = np.zeros(n_status)
+    for i in range(2):
+        status[i], status[2 + i], status[4 + i] = r[i], r_dot[i], f[i]
+        status[6 + i], status[8 + i], status[10 + i] = e[i], f_err[i], tau[i]
+    return status
+
+
+@njit(cache=True)
+def reference_values(r_d, v_d, a_d, f_d):
+    """Values of topics.REFERENCE_FIELDS after ``stamp``."""
+    out = np.empty(8)
+    out[0:2], out[2:4], out[4:6], out[6:8] = r_d, v_d, a_d, f_d
+    return out

@@ -34,6 +34,8 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
+from cr_control.core.linalg import matvec  # noqa: F401 - re-exported for the plants
+
 HEADER = 5   # n, g_x, g_y, t_x, t_y
 PER_LINK = 6  # a_x, a_y, rho_x, rho_y, m, I
 
@@ -203,15 +205,76 @@ def tool_kinematics(chain, q, v):
 
 
 @njit(cache=True)
-def matvec(A, x):
-    """A x for small matrices (numba's @ needs SciPy's BLAS; these sizes do not)."""
-    rows, cols = A.shape
-    out = np.zeros(rows)
-    for i in range(rows):
-        s = 0.0
-        for j in range(cols):
-            s += A[i, j] * x[j]
-        out[i] = s
+def tool_jacobian_dot(chain, q, v):
+    """J'(q, q'): column j = -sum_{i >= j} w_i e_i (e_i the link vectors, the tool's for the
+    last link, w_i the absolute angular rates): the time derivative of perp(r - p_j)."""
+    n = int(chain[0])
+    ex, ey, w = np.empty(n), np.empty(n), np.empty(n)
+    phi = wi = 0.0
+    for i in range(n):
+        k = HEADER + PER_LINK * i
+        phi += q[i]
+        wi += v[i]
+        c, s = math.cos(phi), math.sin(phi)
+        lx, ly = (chain[3], chain[4]) if i == n - 1 else (chain[k], chain[k + 1])
+        ex[i], ey[i], w[i] = c * lx - s * ly, s * lx + c * ly, wi
+    J_dot = np.empty((2, n))
+    sx = sy = 0.0
+    for j in range(n - 1, -1, -1):
+        sx += w[j] * ex[j]
+        sy += w[j] * ey[j]
+        J_dot[0, j], J_dot[1, j] = -sx, -sy
+    return J_dot
+
+
+@njit(cache=True)
+def coriolis_matrix(chain, q, v):
+    """C(q, q') in Christoffel form (M' - 2C skew-symmetric, as Pinocchio's and 2.103):
+    C_ij = sum_k c_ijk q'_k, c_ijk = (d_k M_ij + d_j M_ik - d_i M_jk)/2, with
+    d_k M_ij = sum_{l >= max(i,j,k)} m_l [(c_l - p_max(i,k)) x (c_l - p_j)
+                                         + (c_l - p_max(j,k)) x (c_l - p_i)]."""
+    n = int(chain[0])
+    px, py, cx, cy = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    x = y = phi = 0.0
+    for i in range(n):
+        k = HEADER + PER_LINK * i
+        px[i], py[i] = x, y
+        phi += q[i]
+        c, s = math.cos(phi), math.sin(phi)
+        cx[i] = x + c * chain[k + 2] - s * chain[k + 3]
+        cy[i] = y + s * chain[k + 2] + c * chain[k + 3]
+        x, y = x + c * chain[k] - s * chain[k + 1], y + s * chain[k] + c * chain[k + 1]
+    dM = np.zeros((n, n, n))  # dM[k, i, j] = d M_ij / d q_k
+    for k in range(n):
+        for i in range(n):
+            for j in range(n):
+                total = 0.0
+                for link in range(max(i, j, k), n):
+                    m = chain[HEADER + PER_LINK * link + 4]
+                    a, b = max(i, k), max(j, k)
+                    total += m * ((cx[link] - px[a]) * (cy[link] - py[j])
+                                  - (cy[link] - py[a]) * (cx[link] - px[j])
+                                  + (cx[link] - px[b]) * (cy[link] - py[i])
+                                  - (cy[link] - py[b]) * (cx[link] - px[i]))
+                dM[k, i, j] = total
+    C = np.zeros((n, n))
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += 0.5 * (dM[k, i, j] + dM[j, i, k] - dM[i, j, k]) * v[k]
+            C[i, j] = s
+    return C
+
+
+def kinematics_only(chain: np.ndarray) -> np.ndarray:
+    """A copy of ``chain`` with zero gravity, masses and inertias: geometry only, for laws
+    that must not use a dynamics model."""
+    out = chain.copy()
+    out[1:3] = 0.0
+    for i in range(int(chain[0])):
+        k = HEADER + PER_LINK * i
+        out[k + 4] = out[k + 5] = 0.0
     return out
 
 
