@@ -12,6 +12,7 @@ plots. Every process runs with localhost-only discovery and the session's own do
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import shutil
 import signal
@@ -76,7 +77,8 @@ class SessionResult:
 
 #: Parameters the recorder node declares (cr_control/recording/recorder.py; a test
 #: checks this list against a running Recorder).
-RECORDER_PARAMETERS = ("output", "topics", "optional_topics", "parameter_nodes", "ready_timeout")
+RECORDER_PARAMETERS = ("output", "topics", "optional_topics", "parameter_nodes", "ready_timeout",
+                       "compression")
 #: Node names of a params file that address every node.
 WILDCARD_NODES = ("**", "/**")
 
@@ -293,8 +295,8 @@ class Session:
             raise SessionError(f"unknown scheme {cfg.scheme!r}; known: {sorted(SCHEMES)}")
         if cfg.mode not in ("realtime", "lockstep"):
             raise SessionError(f"mode must be realtime or lockstep, not {cfg.mode!r}")
-        if not cfg.duration > 0:
-            raise SessionError("duration must be > 0")
+        if not 0 < cfg.duration < math.inf:
+            raise SessionError(f"duration must be a finite number > 0, not {cfg.duration}")
         self.cfg = cfg
         self.progress = progress
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -326,9 +328,12 @@ class Session:
 
     def _claim_domain(self) -> DomainLock:
         """Hold the session's domain id; SessionError if another run on this machine has it."""
-        try:
-            if self.requested_domain is None:
+        if self.requested_domain is None:
+            try:
                 return claim_free_domain()
+            except DomainBusyError as exc:
+                raise SessionError(f"{exc}; pass --domain-id to use another id") from None
+        try:
             return claim_domain(self.requested_domain)
         except DomainBusyError as exc:
             hint = ("pass another --domain-id" if self.cfg.domain_id is not None else
@@ -392,9 +397,13 @@ class Session:
 
 def analyse(result: SessionResult, progress=print) -> None:
     """Print the session's metrics and write its plots next to the recording."""
+    from cr_control.analysis import analyze
     from cr_control.analysis.analyze import format_metrics, load_session, metrics, plot_session
 
-    session = load_session(result.mcap)
+    try:
+        session = load_session(result.mcap)
+    except analyze.SessionError as exc:
+        raise SessionError(f"cannot analyse the recording: {exc}") from None
     progress(format_metrics([(session.controller or result.directory.name, metrics(session))]))
     paths = plot_session(session, result.directory / "plots")
     progress(f"plots: {', '.join(str(p) for p in paths)}")
