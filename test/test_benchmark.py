@@ -128,6 +128,130 @@ def test_echo_pair_one_process_produces_cycles(ros_env):
     result = parse_result(proc.stdout)
     assert result is not None, proc.stdout + proc.stderr
     assert result["total_cycles"] > 0
-    assert all(math.isfinite(v) for v in result.values())
+    core = ["rate_hz", "total_cycles", "total_fresh_share", "total_age_p50_ms", "total_age_p99_ms",
+            "step_time_us", "wall_s", "achieved_rate_hz"]
+    assert all(math.isfinite(result[k]) for k in core)
     assert set(topics.PLANT_TIMING_FIELDS) <= set(result)
     assert bm.parse_done_line(proc.stdout + proc.stderr) is not None
+
+
+def test_cpu_per_cycle_between_first_and_last_readable_sample():
+    samples = [{"plant": 100, "ctrl": None}, {"plant": 110, "ctrl": 40}, {"plant": 130, "ctrl": 60}]
+    cycles = [0, 1000, 3000]
+    per = bm.cpu_per_cycle(samples, cycles, clk_tck=100)
+    assert math.isclose(per["plant"], 30 / 100 * 1e6 / 3000)  # 100 us per cycle
+    assert math.isclose(per["ctrl"], 20 / 100 * 1e6 / 2000)
+    assert bm.cpu_per_cycle([{"x": 1}, {"x": 5}], [10, 10]) == {}  # no cycles: no figure
+
+
+def test_window_mean_weighted_and_absent_fields():
+    reports = [{"step_time_us": 100.0, "window_cycles": 1000.0},
+               {"step_time_us": 40.0, "window_cycles": 500.0},
+               {"window_cycles": 10.0}]
+    assert math.isclose(bm.window_mean(reports, "step_time_us"), (100e3 + 20e3) / 1500)
+    assert bm.window_mean(reports, "publish_time_us") is None
+    assert bm.window_mean([], "step_time_us") is None
+
+
+def test_status_fields_read_by_name_from_raw_cdr():
+    fields = topics.STATUS_FIELDS[:-1] + ["in_time_us", "out_time_us", "held", "estimate"]
+    msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension, fields)
+    msg.data = [float(i) + 0.5 for i in range(len(fields))]
+    buf = serialize_message(msg)
+    offsets = bm.offsets_from_end(fields, bm.STATUS_TIME_FIELDS)
+    assert set(offsets) == {"in_time_us", "compute_time_us", "out_time_us"}
+    for name, k in offsets.items():
+        assert bm.last_double(buf, k) == msg.data[fields.index(name)]
+    # Before the controller publishes in/out times: only compute_time_us.
+    assert set(bm.offsets_from_end(topics.STATUS_FIELDS, bm.STATUS_TIME_FIELDS)) == {"compute_time_us"}
+
+
+def test_scaling_to_the_reference_machine():
+    assert bm.scaled_cost(10.0, 30.0) == 100.0  # 10 us at 30 ns/iteration -> 100 us at 300
+    assert bm.scaled_speed(20.0, 30.0) == 2.0   # 20x at 30 ns/iteration -> 2x at 300
+    assert bm.scaled_cost(10.0, 300.0, reference_ns=300.0) == 10.0
+    assert bm.scaled_cost(None, 30.0) is None and bm.scaled_speed(5.0, None) is None
+    assert bm.scaled_cost(math.nan, 30.0) is None and bm.scaled_cost(1.0, 0.0) is None
+
+
+def test_verdicts():
+    assert bm.verdict(995.0, ">=", 990.0) == "PASS"
+    assert bm.verdict(980.0, ">=", 990.0) == "FAIL"
+    assert bm.verdict(1.2, "<=", 1.5) == "PASS" and bm.verdict(1.6, "<=", 1.5) == "FAIL"
+    assert bm.verdict(None, "<=", 1.5) == "n/a" and bm.verdict(1.0, ">=", math.nan) == "n/a"
+
+
+def test_realtime_targets_per_layout():
+    session = {"fresh_diff_pp": -1.5, "rate_hz": 995.0, "p99_ratio": 1.7}
+    echo = {"rate_hz": 990.0}
+    t = {x.name: x for x in bm.realtime_targets("processes", session, echo)}
+    assert [x.verdict for x in t.values()] == ["PASS", "PASS", "FAIL"]
+    composed = bm.realtime_targets("composed", session, echo)
+    assert [x.verdict for x in composed] == ["FAIL", "PASS"]  # within 1 pp; no p99 target
+    recorded = bm.realtime_targets("recorder", dict(session, rate_hz=980.0), {"rate_hz": 985.0})
+    rate = next(x for x in recorded if "rate" in x.name)
+    assert rate.limit == 985.0 and rate.verdict == "FAIL"  # at least the echo pair + recorder's
+    assert all(x.verdict == "n/a" for x in bm.realtime_targets("processes", {}, {}))
+
+
+def test_cost_targets_use_scaled_figures():
+    session = {"compute_p50_us": 9.0, "plant_step_us": 9.0}
+    targets = bm.cost_targets(session, {"speed": 25.0}, {"speed": 60.0}, loop_ns=30.0)
+    by_name = {t.name: t for t in targets}
+    assert by_name["controller compute p50 in the node"].value == 90.0
+    assert by_name["controller compute p50 in the node"].verdict == "PASS"
+    assert by_name["plant step, mean"].verdict == "FAIL"  # 90 us scaled > 80
+    assert by_name["offline loop speed"].value == 6.0 and by_name["offline loop speed"].verdict == "FAIL"
+    assert by_name["lockstep composed speed"].value == 2.5
+    table = bm.format_targets(targets)
+    assert "PASS" in table and "FAIL" in table and "<= 100.0 us" in table
+    assert all(t.as_dict()["verdict"] in ("PASS", "FAIL") for t in targets)
+    assert {t.verdict for t in bm.cost_targets({}, {}, {}, None)} == {"n/a"}
+
+
+def test_recorder_window_cost_and_samples():
+    log_times = [1_000 + 10 * i for i in range(100)]  # 100 messages, 10 ns apart
+    cost = bm.recorder_window_cost(50, 60, 1_000, 1_500, log_times, clk_tck=100)
+    assert cost["messages"] == 50  # (1000, 1500]
+    assert math.isclose(cost["us_per_msg"], 0.1 * 1e6 / 50)
+    assert math.isclose(cost["msgs_per_s"], 50 / 500e-9)
+    samples = [(0, 1), (10, None), (20, 3), (30, 4), (40, 9)]
+    assert bm.samples_between(samples, 5, 35) == ((20, 3), (30, 4))
+    assert bm.samples_between(samples, 5, 25) is None
+
+
+def test_cells_say_na_when_a_node_does_not_publish_a_field():
+    assert bm.cell({"plant_publish_us": None}, "plant_publish_us", ".1f") == "n/a"
+    assert bm.cell({}, "plant_publish_us", ".1f") == "-"
+    assert bm.cell({"plant_publish_us": 12.34}, "plant_publish_us", ".1f") == "12.3"
+    table = bm.format_realtime_table([("session processes", {"out_p50_us": None, "in_p50_us": 3.0})])
+    assert "n/a" in next(ln for ln in table.splitlines() if ln.startswith("controller out p50"))
+
+
+def test_recorder_load_table_and_published_line():
+    assert bm.parse_published("[synthetic_load]: published: 15000 messages in 3.000 s") == 15000
+    assert bm.parse_published("nothing") is None
+    table = bm.format_recorder_load([("recorder, synthetic load", {
+        "msgs_per_s": 5000.0, "cpu_pct": 12.5, "us_per_msg": 25.0, "published": 10, "recorded": 10,
+        "lost": 0}), ("other", {"error": "x"})], loop_ns=30.0)
+    assert "250.0" in table and "failed" in table  # 25 us at 30 ns -> 250 us at 300 ns
+
+
+def test_calibration_figures_are_positive():
+    assert bm.loop_ns_per_iteration(n=1000, repeats=2) > 0
+    aba = bm.aba_us_per_call(n=10, repeats=1)
+    assert aba is None or aba > 0
+
+
+def test_mcap_log_times_from_message_indexes(tmp_path):
+    from cr_control.recording.recorder import McapBagWriter
+
+    path = tmp_path / "t.mcap"
+    writer = McapBagWriter(path, chunk_size=2048)
+    a = writer.add_topic("/a", "std_msgs/msg/Float64MultiArray")
+    b = writer.add_topic("/b", "std_msgs/msg/Float64MultiArray")
+    data = serialize_message(Float64MultiArray(data=[1.0, 2.0]))
+    for i in range(300):
+        writer.write(a if i % 2 else b, data, 5_000 + 3 * i)
+    writer.close()
+    assert bm.mcap_log_times(path) == [5_000 + 3 * i for i in range(300)]

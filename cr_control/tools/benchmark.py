@@ -3,28 +3,43 @@
 Runs, one after another, each on a ROS_DOMAIN_ID of its own (localhost discovery):
 
 1. a real-time session (plant + ``adaptive_impedance`` controller) across processes,
-2. the same session composed (plant and controller in one process),
-3. the bare echo pair (:mod:`cr_control.tools.echo_pair`, same messages, QoS and executor,
-   no math) across processes and in one process, as the baseline of each layout,
-4. lockstep sessions (across processes and composed) and the offline loop (no ROS):
+   against the bare echo pair (:mod:`cr_control.tools.echo_pair`: same messages, QoS and
+   executor, no math) across processes;
+2. the same two in one process each (composed);
+3. the session with the recorder exactly as ``make demo`` runs it (cr_session's
+   recorder, its parameters and topics) against the echo pair plus the same recorder
+   recording the echo pair's topics;
+4. the recorder alone under a synthetic load (a recorded session's 1 kHz topics): its
+   CPU per message, and whether it lost any;
+5. lockstep sessions (across processes and composed) and the offline loop (no ROS):
    how many times faster than real time the same plant and controller run.
 
-Sessions run without the recorder. Whole-run loop figures come from the last
-``/plant/timing`` message (``total_*`` fields) and the plant's "done:" log line; CPU is
-read from ``/proc/<pid>/stat`` (utime + stime) between the first and the last timing
-message, so start-up and shutdown are excluded; "anything else" is the machine's busy
-time (``/proc/stat``) not spent by the run, to flag runs disturbed by other work. The
-controller's compute time per cycle comes from its status topic, read by a best-effort
-raw subscriber in this process (~5% of a core, shown as "benchmark listener"; it did not
-change the loop processes' CPU measurably; ``--no-compute-time`` turns it off).
+A calibration (ns per plain Python loop iteration, µs per Pinocchio ABA call on the
+2-link arm), measured at the start and the end of the run, scales the cost figures to
+the reference machine (:data:`REFERENCE_LOOP_NS` ns per loop iteration) the targets of
+issue 6 are stated for: costs × reference / calibration, speeds × calibration / reference.
+Every target is printed with its measured value and PASS/FAIL.
 
-    cr_benchmark                         # ~1 min on a 2-core machine
+Whole-run loop figures come from the last ``/plant/timing`` message (``total_*`` fields)
+and the plant's "done:" log line; CPU is read from ``/proc/<pid>/stat`` (utime + stime)
+between the first and the last timing message, so start-up and shutdown are excluded,
+and divided by the cycles counted between them (CPU per control cycle); "anything else"
+is the machine's busy time (``/proc/stat``) not spent by the run, to flag runs disturbed
+by other work. Where a cycle's time goes is read by name from the plant timing
+(``step_time_us``, ``publish_time_us``) and the controller status (``in_time_us``,
+``compute_time_us``, ``out_time_us``), "n/a" where a node does not publish a field. The
+status is read by a best-effort raw subscriber in this process (~5% of a core, shown as
+"benchmark listener"; ``--no-compute-time`` turns it off).
+
+    cr_benchmark                         # ~3 min on a 2-core machine
     cr_benchmark --duration 5 --json /tmp/bench.json --skip-offline
+    cr_benchmark --only-recorder-load    # the recorder's CPU per message, ~15 s
 """
 
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
 import math
 import os
@@ -54,8 +69,15 @@ from cr_control.tools.session import STARTUP_TIMEOUT_S, ProcessGroup, Session, S
 SCHEME = "adaptive_impedance"
 #: CPU used by other processes (% of one core) above which a run is flagged as disturbed.
 DISTURBED_PCT = 20.0
+#: ns per plain Python loop iteration of the machine the cost targets are stated for.
+REFERENCE_LOOP_NS = 300.0
+#: The recorder executable's module (``--recorder-module`` swaps it, for A/B comparisons).
+RECORDER_MODULE = "cr_control.recording.recorder"
+#: Timing fields of the controller status read by name (absent ones print "n/a").
+STATUS_TIME_FIELDS = ("in_time_us", "compute_time_us", "out_time_us")
 
 DONE_RE = re.compile(r"done: ([\d.eE+-]+) s simulated in ([\d.eE+-]+) s wall, (\d+) cycles")
+PUBLISHED_RE = re.compile(r"published: (\d+) messages")
 
 
 # -- pure helpers (tested without ROS) ------------------------------------------------
@@ -111,9 +133,11 @@ def cpu_percent(ticks0: int, ticks1: int, wall_s: float, clk_tck: float = CLOCK_
     return 100.0 * (ticks1 - ticks0) / clk_tck / wall_s
 
 
-def cpu_from_samples(samples: Sequence[tuple[float, dict[str, int | None]]]) -> dict[str, float]:
+def cpu_from_samples(samples: Sequence[tuple[float, dict[str, int | None]]],
+                     min_window_s: float = 0.5) -> dict[str, float]:
     """% of one core per process from (wall time, {name: ticks or None}) samples: each process
-    between its first and last readable sample."""
+    between its first and last readable sample, if they are at least ``min_window_s`` apart
+    (clock ticks are 10 ms: a shorter window says nothing)."""
     first: dict[str, tuple[float, int]] = {}
     last: dict[str, tuple[float, int]] = {}
     for t, ticks in samples:
@@ -125,8 +149,30 @@ def cpu_from_samples(samples: Sequence[tuple[float, dict[str, int | None]]]) -> 
     out = {}
     for name, (t0, v0) in first.items():
         t1, v1 = last[name]
-        if t1 > t0:
+        if t1 - t0 >= min_window_s:
             out[name] = cpu_percent(v0, v1, t1 - t0)
+    return out
+
+
+def cpu_per_cycle(samples: Sequence[dict[str, int | None]], cycles: Sequence[float],
+                  clk_tck: float = CLOCK_TICKS, min_cycles: float = 200) -> dict[str, float]:
+    """µs of CPU per control cycle of each process: ``samples[i]`` are the tick counts
+    ({name: ticks or None}) taken when the loop had run ``cycles[i]`` cycles in all; each
+    process between its first and last readable sample, if at least ``min_cycles`` cycles
+    apart (the same figure as CPU% × 10 / rate in kHz, without the rate's rounding)."""
+    first: dict[str, tuple[int, float]] = {}
+    last: dict[str, tuple[int, float]] = {}
+    for ticks, n in zip(samples, cycles, strict=True):
+        for name, value in ticks.items():
+            if value is None:
+                continue
+            first.setdefault(name, (value, n))
+            last[name] = (value, n)
+    out = {}
+    for name, (v0, n0) in first.items():
+        v1, n1 = last[name]
+        if n1 - n0 >= min_cycles:
+            out[name] = (v1 - v0) / clk_tck * 1e6 / (n1 - n0)
     return out
 
 
@@ -139,9 +185,25 @@ def parse_done_line(text: str) -> tuple[float, float, int] | None:
     return float(sim), float(wall), int(cycles)
 
 
+def parse_published(text: str) -> int | None:
+    """Messages the synthetic load published, from its "published:" log line, or None."""
+    matches = PUBLISHED_RE.findall(text)
+    return int(matches[-1]) if matches else None
+
+
 def timing_dict(label: str, data: Sequence[float]) -> dict[str, float]:
     """A labelled /plant/timing array as {field: value}."""
     return dict(zip(topics.fields_of(label), (float(v) for v in data), strict=False))
+
+
+def window_mean(reports: Sequence[dict[str, float]], name: str) -> float | None:
+    """Mean of a per-window mean field (e.g. ``step_time_us``) over timing reports, weighted
+    by their ``window_cycles``; None when no report carries the field."""
+    pairs = [(r[name], r.get("window_cycles", 0.0)) for r in reports if name in r]
+    cycles = sum(n for _, n in pairs)
+    if not pairs or cycles <= 0:
+        return None
+    return sum(v * n for v, n in pairs) / cycles
 
 
 def percentile(values: Sequence[float], p: float) -> float:
@@ -165,8 +227,29 @@ def last_double(buf: bytes, count_from_end: int) -> float:
     return struct.unpack_from("<d" if little else ">d", buf, end - 8 * count_from_end)[0]
 
 
+def offsets_from_end(fields: Sequence[str], names: Sequence[str]) -> dict[str, int]:
+    """{name: position counted from the end of the data} of those ``names`` in ``fields``."""
+    return {name: len(fields) - fields.index(name) for name in names if name in fields}
+
+
+def scaled_cost(value: float | None, loop_ns: float | None,
+                reference_ns: float = REFERENCE_LOOP_NS) -> float | None:
+    """A time measured on a machine of ``loop_ns`` per loop iteration, on the reference one."""
+    if not _finite(value) or not _finite(loop_ns) or loop_ns <= 0:
+        return None
+    return value * reference_ns / loop_ns
+
+
+def scaled_speed(value: float | None, loop_ns: float | None,
+                 reference_ns: float = REFERENCE_LOOP_NS) -> float | None:
+    """A speed (× real time) measured at ``loop_ns`` per loop iteration, on the reference one."""
+    if not _finite(value) or not _finite(loop_ns) or loop_ns <= 0:
+        return None
+    return value * loop_ns / reference_ns
+
+
 def _finite(x: Any) -> bool:
-    return isinstance(x, int | float) and math.isfinite(x)
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def ratios(run: dict[str, Any], baseline: dict[str, Any]) -> dict[str, float]:
@@ -183,13 +266,118 @@ def ratios(run: dict[str, Any], baseline: dict[str, Any]) -> dict[str, float]:
     return out
 
 
+def verdict(value: Any, op: str, limit: Any) -> str:
+    """"PASS" when ``value op limit`` holds (op ">=" or "<="), "FAIL" when not, "n/a" when
+    either is missing or not finite."""
+    if not _finite(value) or not _finite(limit):
+        return "n/a"
+    if op == ">=":
+        return "PASS" if value >= limit else "FAIL"
+    if op == "<=":
+        return "PASS" if value <= limit else "FAIL"
+    raise ValueError(f"unknown comparison {op!r}")
+
+
+@dataclass
+class Target:
+    """One target of issue 6: what is compared, the measured value, the limit, the verdict."""
+
+    name: str
+    value: float | None
+    op: str
+    limit: float | None
+    unit: str = ""
+    note: str = ""
+
+    @property
+    def verdict(self) -> str:
+        return verdict(self.value, self.op, self.limit)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "value": self.value, "op": self.op, "limit": self.limit,
+                "unit": self.unit, "note": self.note, "verdict": self.verdict}
+
+
+def realtime_targets(layout: str, session: dict[str, Any], echo: dict[str, Any]) -> list[Target]:
+    """Issue 6's real-time targets of one layout ("processes", "composed" or "recorder"):
+    the session against the echo pair of the same layout, measured in the same run."""
+    fresh_pp = {"processes": 2.0, "composed": 1.0, "recorder": 2.0}[layout]
+    out = [Target(f"{layout}: fresh command vs echo pair", session.get("fresh_diff_pp"), ">=",
+                  -fresh_pp, " pp", f"within {fresh_pp:g} pp of the echo pair")]
+    if layout == "recorder":
+        out.append(Target(f"{layout}: achieved rate", session.get("rate_hz"), ">=",
+                          echo.get("rate_hz"), " Hz", "at least the echo pair + recorder's"))
+    else:
+        out.append(Target(f"{layout}: achieved rate", session.get("rate_hz"), ">=", 990.0, " Hz"))
+    if layout != "composed":
+        out.append(Target(f"{layout}: round trip p99 vs echo pair", session.get("p99_ratio"), "<=",
+                          1.5, "x"))
+    return out
+
+
+def cost_targets(session: dict[str, Any], lockstep_composed: dict[str, Any],
+                 offline: dict[str, Any], loop_ns: float | None) -> list[Target]:
+    """Issue 6's cost targets, on figures scaled to the reference machine."""
+    note = f"scaled to {REFERENCE_LOOP_NS:g} ns/loop iteration"
+    return [
+        Target("controller compute p50 in the node", scaled_cost(session.get("compute_p50_us"), loop_ns),
+               "<=", 100.0, " us", note),
+        Target("plant step, mean", scaled_cost(session.get("plant_step_us"), loop_ns), "<=", 80.0, " us",
+               note),
+        Target("offline loop speed", scaled_speed(offline.get("speed"), loop_ns), ">=", 10.0, "x", note),
+        Target("lockstep composed speed", scaled_speed(lockstep_composed.get("speed"), loop_ns), ">=", 2.0,
+               "x", note),
+    ]
+
+
+def format_targets(targets: Sequence[Target]) -> str:
+    """The targets as a text table: name, measured, required, verdict."""
+    name_w = max([len("target"), *(len(t.name) for t in targets)])
+    lines = ["target".ljust(name_w) + "measured".rjust(14) + "required".rjust(16) + "  verdict"]
+    for t in targets:
+        spec = ".2f" if t.unit in ("x", " pp") else ".1f"
+        measured = fmt(t.value, spec, t.unit)
+        required = f"{t.op} {fmt(t.limit, spec, t.unit)}"
+        lines.append(t.name.ljust(name_w) + measured.rjust(14) + required.rjust(16) + f"  {t.verdict}"
+                     + (f"  ({t.note})" if t.note else ""))
+    return "\n".join(lines)
+
+
+def recorder_window_cost(ticks0: int, ticks1: int, wall0_ns: int, wall1_ns: int,
+                         log_times_ns: Sequence[int], clk_tck: float = CLOCK_TICKS) -> dict[str, float]:
+    """The recorder's CPU per message between two samples of its CPU ticks taken at wall
+    times ``wall0_ns`` < ``wall1_ns``; ``log_times_ns`` (sorted): the receive times of the
+    messages it wrote."""
+    wall = (wall1_ns - wall0_ns) / 1e9
+    n = bisect.bisect_right(log_times_ns, wall1_ns) - bisect.bisect_right(log_times_ns, wall0_ns)
+    cpu_s = (ticks1 - ticks0) / clk_tck
+    return {"window_s": wall, "messages": n, "msgs_per_s": n / wall if wall > 0 else math.nan,
+            "cpu_pct": 100.0 * cpu_s / wall if wall > 0 else math.nan,
+            "us_per_msg": cpu_s * 1e6 / n if n > 0 else math.nan}
+
+
+def samples_between(samples: Sequence[tuple[int, int | None]], lo_ns: int, hi_ns: int,
+                    ) -> tuple[tuple[int, int], tuple[int, int]] | None:
+    """First and last (wall ns, ticks) sample with readable ticks inside [lo_ns, hi_ns]."""
+    inside = [(t, v) for t, v in samples if v is not None and lo_ns <= t <= hi_ns]
+    return (inside[0], inside[-1]) if len(inside) >= 2 else None
+
+
 def fmt(value: Any, spec: str = ".1f", suffix: str = "") -> str:
-    """A table cell: formatted number, or "-" when missing / not finite."""
+    """A table cell: formatted number, "-" when missing / not finite."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "-"
     if isinstance(value, str):
         return value
     return f"{value:{spec}}{suffix}"
+
+
+def cell(fig: dict[str, Any], key: str, spec: str, suffix: str = "") -> str:
+    """A table cell of ``fig[key]``: "n/a" when the run measured the figure but a node did
+    not publish it (the key is there, its value None); "-" when it does not apply."""
+    if key in fig and fig[key] is None:
+        return "n/a"
+    return fmt(fig.get(key), spec, suffix)
 
 
 # Rows of the real-time table: (label, key in a run's figures, format spec, suffix).
@@ -203,12 +391,25 @@ REALTIME_ROWS = [
     ("cycles without fresh command", "missed_cycles", ".0f", ""),
     ("CPU plant / source (% core)", "cpu_state_pct", ".1f", ""),
     ("CPU controller / echo (% core)", "cpu_command_pct", ".1f", ""),
+    ("CPU recorder (% core)", "cpu_recorder_pct", ".1f", ""),
     ("CPU total (% core)", "cpu_total_pct", ".1f", ""),
     ("CPU benchmark listener (% core)", "cpu_listener_pct", ".1f", ""),
     ("CPU anything else (% core)", "cpu_others_pct", ".1f", ""),
+    ("CPU/cycle plant / source (us)", "cycle_cpu_state_us", ".1f", ""),
+    ("CPU/cycle controller / echo (us)", "cycle_cpu_command_us", ".1f", ""),
+    ("CPU/cycle recorder (us)", "cycle_cpu_recorder_us", ".1f", ""),
+    ("CPU/cycle total (us)", "cycle_cpu_total_us", ".1f", ""),
+    ("CPU/cycle total, scaled (us)", "cycle_cpu_total_scaled_us", ".1f", ""),
     ("plant step, mean (us)", "plant_step_us", ".1f", ""),
+    ("plant step, scaled (us)", "plant_step_scaled_us", ".1f", ""),
+    ("plant publish, mean (us)", "plant_publish_us", ".1f", ""),
+    ("controller in p50 (us)", "in_p50_us", ".1f", ""),
     ("controller compute p50 (us)", "compute_p50_us", ".1f", ""),
+    ("controller compute p50, scaled (us)", "compute_p50_scaled_us", ".1f", ""),
     ("controller compute p99 (us)", "compute_p99_us", ".1f", ""),
+    ("controller out p50 (us)", "out_p50_us", ".1f", ""),
+    ("recorder messages/s", "recorder_msgs_per_s", ".0f", ""),
+    ("recorder CPU/message (us)", "recorder_us_per_msg", ".1f", ""),
     ("vs baseline: fresh (pp)", "fresh_diff_pp", "+.2f", ""),
     ("vs baseline: round trip p99", "p99_ratio", ".2f", "x"),
     ("vs baseline: CPU total", "cpu_ratio", ".2f", "x"),
@@ -224,15 +425,15 @@ def format_realtime_table(runs: Sequence[tuple[str, dict[str, Any]]]) -> str:
         cells = []
         for _, fig in runs:
             cells.append(("failed" if fig.get("error") and key == "rate_hz" else
-                          fmt(fig.get(key), spec, suffix)).rjust(col_w))
+                          cell(fig, key, spec, suffix)).rjust(col_w))
         lines.append(label.ljust(label_w) + "".join(cells))
     return "\n".join(lines)
 
 
 def format_speed_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
     """Lockstep / offline speeds ((title, figures)) as a text table."""
-    head = ["", "simulated s", "wall s", "x real time", "cycles/s", "rt p50 (ms)", "rt p99 (ms)",
-            "CPU (% core)", "others (%)"]
+    head = ["", "simulated s", "wall s", "x real time", "x scaled", "cycles/s", "rt p50 (ms)",
+            "rt p99 (ms)", "CPU (% core)", "others (%)"]
     title_w = max([len("offline loop (no ROS)"), *(len(t) for t, _ in rows)])
     out = [head[0].ljust(title_w) + "".join(h.rjust(13) for h in head[1:])]
     for title, fig in rows:
@@ -240,10 +441,28 @@ def format_speed_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
             out.append(title.ljust(title_w) + "failed".rjust(13))
             continue
         cells = [fmt(fig.get("simulated_s"), ".2f"), fmt(fig.get("wall_s"), ".2f"),
-                 fmt(fig.get("speed"), ".2f", "x"), fmt(fig.get("rate_hz"), ".0f"),
+                 fmt(fig.get("speed"), ".2f", "x"), fmt(fig.get("speed_scaled"), ".2f", "x"),
+                 fmt(fig.get("rate_hz"), ".0f"),
                  fmt(fig.get("rt_p50_ms"), ".3f"), fmt(fig.get("rt_p99_ms"), ".3f"),
                  fmt(fig.get("cpu_total_pct"), ".0f"), fmt(fig.get("cpu_others_pct"), ".0f")]
         out.append(title.ljust(title_w) + "".join(c.rjust(13) for c in cells))
+    return "\n".join(out)
+
+
+def format_recorder_load(rows: Sequence[tuple[str, dict[str, Any]]], loop_ns: float | None) -> str:
+    """The recorder under synthetic load ((title, figures)) as a text table."""
+    head = ["", "messages/s", "CPU (% core)", "us/message", "us/msg scaled", "published", "recorded",
+            "lost"]
+    title_w = max([len("recorder, synthetic load"), *(len(t) for t, _ in rows)])
+    out = [head[0].ljust(title_w) + "".join(h.rjust(14) for h in head[1:])]
+    for title, fig in rows:
+        if fig.get("error"):
+            out.append(title.ljust(title_w) + "failed".rjust(14))
+            continue
+        cells = [fmt(fig.get("msgs_per_s"), ".0f"), fmt(fig.get("cpu_pct"), ".1f"),
+                 fmt(fig.get("us_per_msg"), ".2f"), fmt(scaled_cost(fig.get("us_per_msg"), loop_ns), ".1f"),
+                 fmt(fig.get("published"), "d"), fmt(fig.get("recorded"), "d"), fmt(fig.get("lost"), "d")]
+        out.append(title.ljust(title_w) + "".join(c.rjust(14) for c in cells))
     return "\n".join(out)
 
 
@@ -263,13 +482,78 @@ def loop_figures(timing: dict[str, float] | None, done: tuple[float, float, int]
     return fig
 
 
+# -- calibration ---------------------------------------------------------------------------
+def loop_ns_per_iteration(n: int = 300_000, repeats: int = 7) -> float:
+    """ns per iteration of ``for i in range(n): pass``, best of ``repeats``."""
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _i in range(n):
+            pass
+        best = min(best, time.perf_counter() - t0)
+    return best / n * 1e9
+
+
+def aba_us_per_call(n: int = 2000, repeats: int = 5) -> float | None:
+    """µs per Pinocchio ABA call (TwoLinkArm.forward_dynamics), best of ``repeats``."""
+    try:
+        import numpy as np
+
+        from cr_sim.models.arm_model import TwoLinkArm
+    except ImportError:
+        return None
+    arm = TwoLinkArm()
+    q, v, tau = np.array([0.3, 0.5]), np.array([0.1, -0.2]), np.array([0.5, 0.1])
+    fd = arm.forward_dynamics
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _i in range(n):
+            fd(q, v, tau)
+        best = min(best, time.perf_counter() - t0)
+    return best / n * 1e6
+
+
+def calibrate() -> dict[str, float | None]:
+    """This machine's speed now: ns per plain loop iteration, µs per ABA call."""
+    return {"loop_ns": loop_ns_per_iteration(), "aba_us": aba_us_per_call()}
+
+
+def mcap_log_times(path: Path) -> list[int]:
+    """Sorted log (receive) times of every message of an MCAP file, from its message
+    indexes (no chunk is decompressed); from the messages themselves if it has no summary."""
+    from mcap.opcode import Opcode
+    from mcap.reader import make_reader
+
+    times = array("q")
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        if summary is None or not summary.chunk_indexes:
+            times.extend(m.log_time for _, _, m in reader.iter_messages(log_time_order=False))
+        else:
+            for index in summary.chunk_indexes:
+                for offset in index.message_index_offsets.values():
+                    f.seek(offset)
+                    opcode, _length, _channel, size = struct.unpack("<BQHI", f.read(15))
+                    if opcode != Opcode.MESSAGE_INDEX:
+                        continue
+                    pairs = array("q")
+                    pairs.frombytes(f.read(size))
+                    if sys.byteorder != "little":
+                        pairs.byteswap()
+                    times.extend(pairs[0::2])
+    return sorted(times)
+
+
 # -- ROS side: a listener in this process ----------------------------------------------
 class Listener:
     """One node on ``domain_id`` in its own context, spun by an EventsExecutor in a thread.
 
     Keeps every /plant/timing report and, on each, samples the CPU time of the
     processes ``pids()`` names (and of this process); optionally the controller's
-    ``compute_time_us`` from its status topic (best effort, raw CDR: cheap).
+    timing fields (:data:`STATUS_TIME_FIELDS`) from its status topic (best effort, raw
+    CDR: cheap).
     """
 
     def __init__(self, domain_id: int, pids: Callable[[], dict[str, int]],
@@ -289,9 +573,10 @@ class Listener:
         self.pids = pids
         self.timing: list[tuple[float, dict[str, float]]] = []
         self.cpu_samples: list[tuple[float, dict[str, int | None]]] = []
-        self.compute_us = array("d")
+        self.wall_ns: list[int] = []  # time.time_ns() of each CPU sample
+        self.status: dict[str, array] = {}
         self.status_received = 0
-        self._status_index: int | None = None  # counted from the end of the data
+        self._offsets: dict[str, int] | None = None  # field -> position from the end of data
         self._status_raw_ok = True
         self._msg_cls = Float64MultiArray
         isolate_this_process(domain_id)  # localhost discovery for this process too
@@ -327,27 +612,33 @@ class Listener:
         ticks[LISTENER] = read_cpu_ticks("self")
         ticks[MACHINE] = read_machine_ticks()
         self.cpu_samples.append((now, ticks))
+        self.wall_ns.append(time.time_ns())
 
     def _on_status(self, buf: bytes) -> None:
         self.status_received += 1
-        if self._status_index is None or not self._status_raw_ok:
+        if self._offsets is None or not self._status_raw_ok:
             from rclpy.serialization import deserialize_message
 
             msg = deserialize_message(buf, self._msg_cls)
             fields = topics.fields_of(msg.layout.dim[0].label if msg.layout.dim else "")
-            if "compute_time_us" not in fields:
+            offsets = offsets_from_end(fields, STATUS_TIME_FIELDS)
+            n = len(msg.data)
+            if len(fields) != n:
                 return
-            i = fields.index("compute_time_us")
-            value = float(msg.data[i])
-            if self._status_index is None:
-                self._status_index = len(msg.data) - i
+            values = {name: float(msg.data[n - k]) for name, k in offsets.items()}
+            if self._offsets is None:
+                self._offsets = offsets
                 try:
-                    self._status_raw_ok = last_double(buf, self._status_index) == value
+                    self._status_raw_ok = all(
+                        struct.pack("d", last_double(buf, k)) == struct.pack("d", values[name])
+                        for name, k in offsets.items())
                 except (struct.error, IndexError):
                     self._status_raw_ok = False
-            self.compute_us.append(value)
+            for name, value in values.items():
+                self.status.setdefault(name, array("d")).append(value)
             return
-        self.compute_us.append(last_double(buf, self._status_index))
+        for name, k in self._offsets.items():
+            self.status.setdefault(name, array("d")).append(last_double(buf, k))
 
     def last_timing(self) -> dict[str, float] | None:
         return self.timing[-1][1] if self.timing else None
@@ -359,6 +650,31 @@ class Listener:
         self.executor.shutdown()
         self.node.destroy_node()
         self._rclpy.try_shutdown(context=self.context)
+
+
+class TickSampler:
+    """Samples the CPU ticks of ``pids()`` every ``period`` s in a thread: [(wall ns, ticks)]."""
+
+    def __init__(self, pids: Callable[[], dict[str, int]], period: float = 0.2):
+        self.pids = pids
+        self.period = period
+        self.samples: list[tuple[int, dict[str, int | None]]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="cr_benchmark_sampler", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            ticks = {n: read_cpu_ticks(p) for n, p in list(self.pids().items())}
+            self.samples.append((time.time_ns(), ticks))
+
+    def of(self, name: str) -> list[tuple[int, int | None]]:
+        """(wall ns, ticks) samples of one process."""
+        return [(t, ticks.get(name)) for t, ticks in self.samples]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
 
 
 # -- runs --------------------------------------------------------------------------------
@@ -379,8 +695,10 @@ class Progress:
         print(f"[{self.run} {elapsed:5.1f} s] {line.strip()}", file=self.stream, flush=True)
 
 
-def _steady_figures(listener: Listener | None, names: dict[str, str]) -> dict[str, Any]:
-    """CPU per role (names: role -> process name) and plant step time from the listener."""
+def _steady_figures(listener: Listener | None, names: dict[str, str],
+                    mcap: Path | None = None) -> dict[str, Any]:
+    """CPU (% core and µs per cycle) per role (names: role -> process name), where a cycle's
+    time goes, and the recorder's CPU per message (``mcap``: its file) from the listener."""
     fig: dict[str, Any] = {}
     if listener is None:
         return fig
@@ -393,26 +711,64 @@ def _steady_figures(listener: Listener | None, names: dict[str, str]) -> dict[st
     fig["cpu_per_process_pct"] = ours
     if MACHINE in cpu:
         fig["cpu_others_pct"] = max(0.0, cpu[MACHINE] - sum(ours.values()) - cpu.get(LISTENER, 0.0))
-    windows = [(t.get("step_time_us", 0.0), t.get("window_cycles", 0.0)) for _, t in listener.timing]
-    cycles = sum(n for _, n in windows)
-    fig["timing_reports"] = len(listener.timing)
-    fig["plant_step_us"] = sum(us * n for us, n in windows) / cycles if cycles > 0 else None
-    if len(listener.compute_us):
-        fig["compute_p50_us"] = percentile(listener.compute_us, 50)
-        fig["compute_p99_us"] = percentile(listener.compute_us, 99)
-        fig["compute_samples"] = len(listener.compute_us)
+    reports = [t for _, t in listener.timing]
+    cycles = [t.get("total_cycles", math.nan) for t in reports]
+    per_cycle = cpu_per_cycle([{k: v for k, v in ticks.items() if k not in (LISTENER, MACHINE)}
+                               for _, ticks in listener.cpu_samples], cycles)
+    fig["cycle_cpu_per_process_us"] = per_cycle
+    for role, proc in names.items():
+        fig[f"cycle_cpu_{role}_us"] = per_cycle.get(proc)
+    fig["cycle_cpu_total_us"] = sum(per_cycle.values()) if per_cycle else None
+    fig["timing_reports"] = len(reports)
+    if mcap is not None and "recorder" in names:
+        fig.update(_recorder_in_window(listener, names["recorder"], mcap))
+    return fig
+
+
+def _recorder_in_window(listener: Listener, proc: str, mcap: Path) -> dict[str, Any]:
+    samples = [(t, ticks.get(proc)) for t, (_, ticks) in zip(listener.wall_ns, listener.cpu_samples,
+                                                              strict=True)]
+    window = samples_between(samples, 0, 2**63 - 1)
+    if window is None or not mcap.exists():
+        return {"recorder_us_per_msg": None}
+    try:
+        log_times = mcap_log_times(mcap)
+    except Exception as exc:  # noqa: BLE001 - a broken file is a finding, not a crash
+        return {"recorder_us_per_msg": None, "recorder_error": f"cannot read {mcap}: {exc}"}
+    (t0, v0), (t1, v1) = window
+    cost = recorder_window_cost(v0, v1, t0, t1, log_times)
+    return {"recorder_us_per_msg": cost["us_per_msg"], "recorder_msgs_per_s": cost["msgs_per_s"],
+            "recorder_messages_written": len(log_times)}
+
+
+def _time_breakdown(listener: Listener | None, controller: bool) -> dict[str, Any]:
+    """Plant step/publish means and controller in/compute/out percentiles; None where a
+    field is not published (printed "n/a")."""
+    fig: dict[str, Any] = {}
+    if listener is None:
+        return fig
+    reports = [t for _, t in listener.timing]
+    fig["plant_step_us"] = window_mean(reports, "step_time_us")
+    fig["plant_publish_us"] = window_mean(reports, "publish_time_us")
+    if controller:
+        for name, key in (("in_time_us", "in"), ("compute_time_us", "compute"), ("out_time_us", "out")):
+            values = listener.status.get(name)
+            fig[f"{key}_p50_us"] = percentile(values, 50) if values else None
+            fig[f"{key}_p99_us"] = percentile(values, 99) if values else None
+        fig["compute_samples"] = len(listener.status.get("compute_time_us", ()))
     return fig
 
 
 def run_session(title: str, domain: int, out: Path, duration: float, mode: str, composed: bool,
-                progress: Progress, compute_time: bool) -> dict[str, Any]:
-    """One session without recorder; its loop, CPU and compute figures."""
+                progress: Progress, compute_time: bool, record: bool = False) -> dict[str, Any]:
+    """One session (with the recorder as ``make demo`` runs it if ``record``); its loop, CPU,
+    time breakdown and, recorded, the recorder's CPU per message."""
     progress.begin(title)
     name = re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
     session = Session(SessionConfig(scheme=SCHEME, duration=duration, mode=mode, composed=composed,
-                                    record=False, out=out, domain_id=domain, name=name), progress=progress)
+                                    record=record, out=out, domain_id=domain, name=name), progress=progress)
     listener = None
-    fig: dict[str, Any] = {"domain_id": domain, "logs": str(session.logs)}
+    fig: dict[str, Any] = {"domain_id": domain, "logs": str(session.logs), "recorder": record}
     try:
         listener = Listener(domain, lambda: {k: p.pid for k, p in list(session.processes.items())},
                             topics.status_topic(SCHEME) if compute_time and mode == "realtime" else None)
@@ -429,7 +785,11 @@ def run_session(title: str, domain: int, out: Path, duration: float, mode: str, 
     done = parse_done_line(log.read_text(errors="replace")) if log.exists() else None
     fig.update(loop_figures(listener.last_timing() if listener else None, done))
     roles = {} if composed else {"state": "plant", "command": SCHEME}
-    fig.update(_steady_figures(listener, roles))
+    if record:
+        roles["recorder"] = "recorder"
+        fig["mcap"] = str(session.mcap)
+    fig.update(_steady_figures(listener, roles, session.mcap if record else None))
+    fig.update(_time_breakdown(listener, controller=compute_time and mode == "realtime"))
     if listener is not None:
         fig["status_received"] = listener.status_received
     if done is None and "error" not in fig:
@@ -439,9 +799,19 @@ def run_session(title: str, domain: int, out: Path, duration: float, mode: str, 
     return fig
 
 
+def _write_recorder_params(path: Path, mcap: Path, record_topics: list[str], nodes: list[str]) -> None:
+    import yaml
+
+    path.write_text(yaml.safe_dump({"recorder": {"ros__parameters": {
+        "output": str(mcap), "topics": record_topics, "parameter_nodes": nodes,
+        "ready_timeout": 30.0}}}, sort_keys=False))
+
+
 def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool,
-             progress: Progress, rate_hz: float = 1000.0) -> dict[str, Any]:
-    """The bare echo pair, across two processes or in one; its loop and CPU figures."""
+             progress: Progress, rate_hz: float = 1000.0, record: bool = False,
+             recorder_module: str = RECORDER_MODULE) -> dict[str, Any]:
+    """The bare echo pair, across two processes or in one (with ``record``: plus the
+    session's recorder recording its topics); its loop and CPU figures."""
     progress.begin(title)
     logs = out / re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
     logs.mkdir(parents=True, exist_ok=True)
@@ -450,15 +820,24 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
     progress(f"echo pair {logs} (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, "
              f"discovery {env['ROS_AUTOMATIC_DISCOVERY_RANGE']})")
     group = ProcessGroup(logs, env, progress)
+    mcap = logs / "echo.mcap"
 
     def start(name: str, role: str) -> None:
         group.start(name, [sys.executable, "-m", "cr_control.tools.echo_pair", role,
-                           "--duration", str(duration), "--rate", str(rate_hz)])
+                           "--duration", str(duration), "--rate", str(rate_hz)]
+                    + (["--wait-for-recorder"] if record and role != "echo" else []))
 
-    fig: dict[str, Any] = {"domain_id": domain, "logs": str(logs)}
+    fig: dict[str, Any] = {"domain_id": domain, "logs": str(logs), "recorder": record}
     listener = Listener(domain, lambda: {k: p.pid for k, p in list(group.processes.items())})
     main_name = "echo_pair" if composed else "source"
     try:
+        if record:
+            params = logs / "recorder.yaml"
+            _write_recorder_params(params, mcap, [topics.JOINT_STATES, topics.WRENCH, topics.JOINT_COMMANDS,
+                                                  topics.PLANT_TIMING], ["echo_source", "echo"])
+            group.start("recorder", [sys.executable, "-m", recorder_module, "--ros-args",
+                                     "--params-file", str(params)])
+            fig["mcap"] = str(mcap)
         if composed:
             start(main_name, "both")
         else:
@@ -477,11 +856,85 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
     done = parse_done_line(text)
     fig.update(loop_figures(result or listener.last_timing(), done))
     roles = {} if composed else {"state": "source", "command": "echo"}
-    fig.update(_steady_figures(listener, roles))
-    fig["plant_step_us"] = None
+    if record:
+        roles["recorder"] = "recorder"
+    fig.update(_steady_figures(listener, roles, mcap if record else None))
+    publish = window_mean([t for _, t in listener.timing], "publish_time_us")
+    if _finite(publish):  # the source's own publish time: the floor under the plant's
+        fig["plant_publish_us"] = publish
     if done is None and "error" not in fig:
         fig["error"] = f"no 'done:' line in {logs / main_name}.log"
     return fig
+
+
+def run_recorder_load(title: str, domain: int, out: Path, duration: float, progress: Progress,
+                      recorder_module: str = RECORDER_MODULE, rate_hz: float = 1000.0) -> dict[str, Any]:
+    """The recorder as a session runs it, under the synthetic load of the echo pair's
+    ``synthetic`` role (a session's five 1 kHz topics, the timing report, parameter
+    events): its CPU per message in the steady part and how many messages it lost."""
+    progress.begin(title)
+    logs = out / re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
+    logs.mkdir(parents=True, exist_ok=True)
+    env = isolated_env(domain)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    group = ProcessGroup(logs, env, progress)
+    mcap = logs / "load.mcap"
+    params = logs / "recorder.yaml"
+    record_topics = [topics.JOINT_STATES, topics.WRENCH, topics.JOINT_COMMANDS, topics.PLANT_TIMING,
+                     topics.PARAMETER_EVENTS, topics.reference_topic(SCHEME), topics.status_topic(SCHEME)]
+    _write_recorder_params(params, mcap, record_topics, ["synthetic_load"])
+    fig: dict[str, Any] = {"domain_id": domain, "logs": str(logs), "recorder_module": recorder_module,
+                           "mcap": str(mcap), "rate_hz": rate_hz}
+    sampler = TickSampler(lambda: {k: p.pid for k, p in list(group.processes.items())})
+    try:
+        group.start("recorder", [sys.executable, "-m", recorder_module, "--ros-args",
+                                 "--params-file", str(params)])
+        group.start("synthetic", [sys.executable, "-m", "cr_control.tools.echo_pair", "synthetic",
+                                  "--duration", str(duration), "--rate", str(rate_hz),
+                                  "--controller", SCHEME])
+        group.wait("synthetic", STARTUP_TIMEOUT_S + 2 * duration, "published:")
+    except SessionError as exc:
+        fig["error"] = f"{exc}; logs in {logs}"
+        progress(f"FAILED: {exc}")
+    finally:
+        sampler.close()
+        group.stop()
+    published = parse_published((logs / "synthetic.log").read_text(errors="replace"))
+    if "error" in fig:
+        return fig
+    try:
+        log_times = mcap_log_times(mcap)
+        recorded = _recorded_except(mcap, topics.PARAMETER_EVENTS)
+    except Exception as exc:  # noqa: BLE001 - an unreadable file is the finding
+        fig["error"] = f"cannot read {mcap}: {exc}"
+        return fig
+    fig.update(published=published, recorded=recorded,
+               lost=published - recorded if published is not None else None)
+    if len(log_times) < 2:
+        fig["error"] = f"{len(log_times)} messages recorded"
+        return fig
+    margin = 500_000_000  # leave out the first and last 0.5 s: start-up and drain
+    window = samples_between(sampler.of("recorder"), log_times[0] + margin, log_times[-1] - margin)
+    if window is None:
+        fig["error"] = "run too short for a steady window (use a longer --recorder-duration)"
+        return fig
+    (t0, v0), (t1, v1) = window
+    fig.update(recorder_window_cost(v0, v1, t0, t1, log_times))
+    progress(f"{fig['msgs_per_s']:.0f} messages/s, {fig['us_per_msg']:.2f} us CPU per message, "
+             f"{fig['lost']} lost")
+    return fig
+
+
+def _recorded_except(path: Path, skip: str) -> int:
+    """Messages in an MCAP file (summary statistics) on every channel but ``skip``."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    if summary is None or summary.statistics is None:
+        raise ValueError("no summary")
+    skipped = {cid for cid, ch in summary.channels.items() if ch.topic == skip}
+    return sum(n for cid, n in summary.statistics.channel_message_counts.items() if cid not in skipped)
 
 
 def run_offline(duration: float, progress: Progress) -> dict[str, Any]:
@@ -514,11 +967,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds of each real-time run (default 10)")
     p.add_argument("--lockstep-duration", type=float, default=10.0,
                    help="simulated seconds of each lockstep run and of the offline loop (default 10)")
+    p.add_argument("--recorder-duration", type=float, default=4.0,
+                   help="seconds of synthetic load on the recorder (default 4)")
     p.add_argument("--json", type=Path, help="also write every figure to this JSON file")
     p.add_argument("--out", type=Path, help="directory for the runs' logs (default: a new temp dir)")
     p.add_argument("--skip-offline", action="store_true", help="no offline-loop speed")
     p.add_argument("--skip-lockstep", action="store_true", help="no lockstep sessions")
     p.add_argument("--skip-composed", action="store_true", help="no one-process runs")
+    p.add_argument("--skip-recorder", action="store_true",
+                   help="no runs with the recorder, no recorder load")
+    p.add_argument("--only-recorder-load", action="store_true",
+                   help="only the calibration and the recorder under synthetic load")
+    p.add_argument("--recorder-module", action="append",
+                   help=f"module run as the recorder (default {RECORDER_MODULE}); given several "
+                        "times, the recorder load runs each in turn (A/B comparison)")
     p.add_argument("--no-compute-time", action="store_true",
                    help="do not subscribe to the controller status (no compute time figures)")
     p.add_argument("--domain-base", type=int,
@@ -529,44 +991,101 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and print its tables."""
     args = build_parser().parse_args(argv)
-    if not args.duration > 0 or not args.lockstep_duration > 0:
+    if not args.duration > 0 or not args.lockstep_duration > 0 or not args.recorder_duration > 0:
         print("cr_benchmark: durations must be > 0", file=sys.stderr)
         return 2
     out = args.out or Path(tempfile.mkdtemp(prefix="cr_benchmark-"))
     out.mkdir(parents=True, exist_ok=True)
-    domains = iter(domain_ids(args.domain_base if args.domain_base is not None else free_domain_id(), 6))
+    domains = iter(domain_ids(args.domain_base if args.domain_base is not None else free_domain_id(), 20))
     progress = Progress()
     compute = not args.no_compute_time
+    recorder_modules = args.recorder_module or [RECORDER_MODULE]
     t_start = time.monotonic()
+    progress.begin("calibration")
+    calibration = {"start": calibrate()}
+    progress(f"{calibration['start']['loop_ns']:.1f} ns per loop iteration, "
+             f"{fmt(calibration['start']['aba_us'], '.2f')} us per ABA call")
     layouts = [("processes", False)] + ([] if args.skip_composed else [("composed", True)])
     realtime: list[tuple[str, dict[str, Any]]] = []
+    speeds: list[tuple[str, dict[str, Any]]] = []
+    loads: list[tuple[str, dict[str, Any]]] = []
+    targets: list[Target] = []
     try:
-        for layout, composed in layouts:
-            session = run_session(f"session {layout}", next(domains), out, args.duration, "realtime",
-                                  composed, progress, compute)
-            echo = run_echo(f"echo {layout}", next(domains), out, args.duration, composed, progress)
-            session.update(ratios(session, echo))
-            realtime += [(f"session {layout}", session), (f"echo {layout}", echo)]
-        speeds: list[tuple[str, dict[str, Any]]] = []
-        if not args.skip_lockstep:
+        if not args.only_recorder_load:
             for layout, composed in layouts:
-                title = f"lockstep {layout}"
-                speeds.append((title, run_session(title, next(domains), out, args.lockstep_duration,
-                                                  "lockstep", composed, progress, False)))
-        if not args.skip_offline:
-            speeds.append(("offline loop (no ROS)", run_offline(args.lockstep_duration, progress)))
+                session = run_session(f"session {layout}", next(domains), out, args.duration, "realtime",
+                                      composed, progress, compute)
+                echo = run_echo(f"echo {layout}", next(domains), out, args.duration, composed, progress)
+                session.update(ratios(session, echo))
+                realtime += [(f"session {layout}", session), (f"echo {layout}", echo)]
+                targets += realtime_targets(layout, session, echo)
+            if not args.skip_recorder:
+                session = run_session("session + recorder", next(domains), out, args.duration, "realtime",
+                                      False, progress, compute, record=True)
+                echo = run_echo("echo + recorder", next(domains), out, args.duration, False, progress,
+                                record=True, recorder_module=recorder_modules[0])
+                session.update(ratios(session, echo))
+                realtime += [("session + recorder", session), ("echo + recorder", echo)]
+                targets += realtime_targets("recorder", session, echo)
+        if not args.skip_recorder or args.only_recorder_load:
+            for module in recorder_modules:
+                title = "recorder, synthetic load" + ("" if len(recorder_modules) == 1 else f" ({module})")
+                loads.append((title, run_recorder_load(title, next(domains), out, args.recorder_duration,
+                                                       progress, module)))
+        if not args.only_recorder_load:
+            if not args.skip_lockstep:
+                for layout, composed in layouts:
+                    title = f"lockstep {layout}"
+                    speeds.append((title, run_session(title, next(domains), out, args.lockstep_duration,
+                                                      "lockstep", composed, progress, False)))
+            if not args.skip_offline:
+                speeds.append(("offline loop (no ROS)",
+                               run_offline(args.lockstep_duration, progress)))
     except KeyboardInterrupt:
         print("cr_benchmark: interrupted", file=sys.stderr)
         return 130
+    progress.begin("calibration")
+    calibration["end"] = calibrate()
     total = time.monotonic() - t_start
+    ends = [c["loop_ns"] for c in calibration.values() if _finite(c.get("loop_ns"))]
+    calibration["loop_ns"] = sum(ends) / len(ends)
+    abas = [c["aba_us"] for c in (calibration["start"], calibration["end"]) if _finite(c.get("aba_us"))]
+    calibration["aba_us"] = sum(abas) / len(abas) if abas else None
+    # Scaled figures with the run's mean calibration.
+    loop_ns = calibration["loop_ns"]
+    for _, fig in realtime + speeds:
+        for key, scaled in (("plant_step_us", "plant_step_scaled_us"),
+                            ("compute_p50_us", "compute_p50_scaled_us"),
+                            ("cycle_cpu_total_us", "cycle_cpu_total_scaled_us")):
+            if key in fig:  # None stays None: printed "n/a"
+                fig[scaled] = scaled_cost(fig[key], loop_ns)
+        if "speed" in fig:
+            fig["speed_scaled"] = scaled_speed(fig["speed"], loop_ns)
+    runs = dict(realtime + speeds)
+    if "session processes" in runs:
+        targets += cost_targets(runs["session processes"], runs.get("lockstep composed", {}),
+                                runs.get("offline loop (no ROS)", {}), loop_ns)
 
     print()
-    print(f"cr_benchmark: {SCHEME}, real-time runs {args.duration:g} s at 1 kHz, no recorder, "
+    print(f"cr_benchmark: {SCHEME}, real-time runs {args.duration:g} s at 1 kHz, "
           f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, took {total:.0f} s")
-    print(format_realtime_table(realtime))
+    print(f"calibration: {calibration['start']['loop_ns']:.1f} / {calibration['end']['loop_ns']:.1f} ns "
+          f"per plain Python loop iteration (start / end of the run), "
+          f"{fmt(calibration['start']['aba_us'], '.2f')} / {fmt(calibration['end']['aba_us'], '.2f')} us "
+          f"per Pinocchio ABA call (2-link arm); scaled figures: x {REFERENCE_LOOP_NS:g} / {loop_ns:.1f} "
+          f"(costs) or x {loop_ns:.1f} / {REFERENCE_LOOP_NS:g} (speeds)")
+    if realtime:
+        print()
+        print(format_realtime_table(realtime))
+    if loads:
+        print()
+        print(format_recorder_load(loads, loop_ns))
     if speeds:
         print()
         print(format_speed_table(speeds))
+    if targets:
+        print()
+        print(format_targets(targets))
     busy = [t for t, f in realtime + speeds if (f.get("cpu_others_pct") or 0.0) > DISTURBED_PCT]
     if busy:
         print(f"\nnote: other processes used more than {DISTURBED_PCT:g}% of a core during "
@@ -575,16 +1094,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         report = {
             "scheme": SCHEME, "duration_s": args.duration, "lockstep_duration_s": args.lockstep_duration,
-            "recorder": False, "cpu_count": os.cpu_count(), "total_s": total,
+            "cpu_count": os.cpu_count(), "total_s": total, "calibration": calibration,
+            "reference_loop_ns": REFERENCE_LOOP_NS,
             "realtime": {title: fig for title, fig in realtime},
+            "recorder_load": {title: fig for title, fig in loads},
             "speed": {title: fig for title, fig in speeds},
+            "targets": [t.as_dict() for t in targets],
             "logs": str(out),
         }
         args.json.write_text(json.dumps(json_safe(report), indent=2))
         print(f"json: {args.json}")
-    failed = [t for t, f in realtime + speeds if f.get("error")]
-    for title in failed:
-        print(f"{title}: {dict(realtime + speeds)[title]['error']}", file=sys.stderr)
+    failed = [(t, f) for t, f in realtime + speeds + loads if f.get("error")]
+    for title, fig in failed:
+        print(f"{title}: {fig['error']}", file=sys.stderr)
     return 1 if failed else 0
 
 
