@@ -138,6 +138,12 @@ def test_node_refuses_misspelt_parameter(tmp_path, ros_env):
     assert line == f"{SCHEME}: refused to start: unknown parameter for {SCHEME}: Q_cc (did you mean Q_c?)"
 
 
+def test_plant_refuses_misspelt_parameter(tmp_path, ros_env):
+    params = write(tmp_path / "p.yaml", "plant:\n  ros__parameters:\n    stifness: 300.0\n")
+    line = error_line(run("cr_sim.plant_node", "--ros-args", "--params-file", str(params), env=ros_env))
+    assert line.startswith("plant: refused to start: unknown parameter for plant: stifness")
+
+
 def test_node_refuses_wrong_type_with_the_name(tmp_path, ros_env):
     params = write(tmp_path / "p.yaml", f"{SCHEME}:\n  ros__parameters:\n    Q_c: fast\n")
     line = error_line(controller(params, ros_env))     # InvalidParameterTypeException before
