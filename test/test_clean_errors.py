@@ -108,6 +108,16 @@ def test_session_refuses_unknown_override(tmp_path, ros_env):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("override,reason", [
+    (f"{SCHEME}.Q_c=[1.0, -1.0]", f"{SCHEME}: Q_c must be positive definite"),
+    ("plant.stiffness=stiff", "plant: stiffness must be a number"),
+])
+def test_session_refuses_bad_values_before_starting(tmp_path, ros_env, override, reason):
+    line = error_line(session(tmp_path, ros_env, "--out", str(tmp_path / "out"), "-p", override))
+    assert line.startswith(f"cr_session: {reason}")
+    assert not (tmp_path / "out").exists()
+
+
 def test_session_knows_every_recorder_parameter(tmp_path):
     """The session's list of recorder parameters is what the recorder node declares."""
     from cr_control.recording.recorder import Recorder

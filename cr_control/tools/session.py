@@ -28,7 +28,7 @@ from typing import Any
 import yaml
 
 from cr_control.core import ros_yaml, topics
-from cr_control.core.parameters import ParameterError
+from cr_control.core.parameters import Param, ParameterError, validate
 from cr_control.core.paths import config_file
 from cr_control.core.ros_env import (
     DomainBusyError,
@@ -131,10 +131,11 @@ def _merge(params: dict[str, dict[str, Any]], node: str, values: dict[str, Any],
         params[target].update(values)
 
 
-def declared_parameters(node: str, params: dict[str, Any], scheme: str) -> list[str]:
-    """Names of the parameters session node ``node`` declares, given its ``params``."""
+def node_specs(node: str, params: dict[str, Any], scheme: str) -> list[Param] | None:
+    """The declared parameters of session node ``node`` given its ``params`` (None for
+    the recorder, which declares plain ROS parameters: see RECORDER_PARAMETERS)."""
     if node == "recorder":
-        return list(RECORDER_PARAMETERS)
+        return None
     if node == "plant":
         from cr_sim.plant_node import plant_parameters
         from cr_sim.plants.registry import SCENARIOS
@@ -142,15 +143,15 @@ def declared_parameters(node: str, params: dict[str, Any], scheme: str) -> list[
         scenario = params.get("scenario")
         if scenario not in SCENARIOS:
             raise SessionError(f"plant.scenario {scenario!r} is not one of {sorted(SCENARIOS)}")
-        return [p.name for p in plant_parameters(scenario)]
-    return [p.name for p in controller_class(scheme).parameters()]
+        return plant_parameters(scenario)
+    return controller_class(scheme).parameters()
 
 
 def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, Any]]:
     """Parameters of every node of the session: shipped defaults, files, overrides.
 
     SessionError naming the file, node or parameter for anything a node would not take:
-    unreadable or malformed files, unknown nodes, unknown parameter names.
+    unreadable or malformed files, unknown nodes, unknown parameter names, refused values.
     """
     scenario = default_scenario(cfg.scheme)
     params = _load_params_file(config_file(f"{cfg.scheme}.yaml"))
@@ -171,18 +172,25 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
     for text in cfg.overrides:
         node, name, value = _parse_override(text)
         _merge(params, node, {name: value}, f"override {text!r}")
-    _refuse_unknown_parameters(params, cfg.scheme)
+    _check_parameters(params, cfg.scheme)
     return params
 
 
-def _refuse_unknown_parameters(params: dict[str, dict[str, Any]], scheme: str) -> None:
+def _check_parameters(params: dict[str, dict[str, Any]], scheme: str) -> None:
+    """SessionError for a parameter a node does not have or would refuse at start."""
     from cr_control.nodes.ros_parameters import refuse_unknown
 
     for node, values in params.items():
+        specs = node_specs(node, values, scheme)
         try:
-            refuse_unknown(node, values, declared_parameters(node, values, scheme))
+            refuse_unknown(node, values, RECORDER_PARAMETERS if specs is None else
+                           [spec.name for spec in specs])
         except ParameterError as exc:
             raise SessionError(str(exc)) from None
+        for spec in specs or ():
+            ok, reason, _ = validate(spec, values.get(spec.name, spec.default))
+            if not ok:
+                raise SessionError(f"{node}: {reason}")
 
 
 def _check_out(out: Path) -> None:
