@@ -31,9 +31,13 @@ test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q test
 
-## Real-time figures: sessions across processes and composed vs a bare rclpy echo pair.
+## Real-time figures and issue 6's targets (PASS/FAIL): sessions across processes, composed and
+## with the recorder vs a bare rclpy echo pair, the recorder's CPU per message, lockstep and
+## offline speed, costs scaled by a calibration. BENCH_ARGS e.g. "--duration 5 --skip-lockstep".
+BENCH_ARGS ?=
+BENCH_JSON ?= $(OUT)/benchmark.json
 benchmark: $(STAMP)
-	$(BIN)/cr_benchmark
+	$(BIN)/cr_benchmark --json $(BENCH_JSON) $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) build install log *.egg-info

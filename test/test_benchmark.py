@@ -67,6 +67,9 @@ def test_timing_dict_and_loop_figures():
     assert math.isclose(fig["fresh_pct"], 99.5)
     assert fig["rt_p99_ms"] == timing["total_age_p99_ms"]
     assert bm.loop_figures(None, None) == {}
+    silent = bm.loop_figures(dict(timing, total_age_p50_ms=0.0, total_age_p99_ms=0.0,
+                                  total_age_max_ms=0.0, total_fresh_share=0.0), None)
+    assert silent["rt_p99_ms"] is None and silent["fresh_pct"] == 0.0  # no command came back
 
 
 def test_percentile():

@@ -475,8 +475,10 @@ def loop_figures(timing: dict[str, float] | None, done: tuple[float, float, int]
                    rate_hz=cycles / wall if wall > 0 else math.nan)
     if timing:
         fig.setdefault("cycles", int(timing.get("total_cycles", 0)))
-        fig.update(rt_p50_ms=timing.get("total_age_p50_ms"), rt_p99_ms=timing.get("total_age_p99_ms"),
-                   rt_max_ms=timing.get("total_age_max_ms"),
+        ages = [timing.get(k) for k in ("total_age_p50_ms", "total_age_p99_ms", "total_age_max_ms")]
+        if not any(ages):  # no command ever came back: no round trip to report
+            ages = [None, None, None]
+        fig.update(rt_p50_ms=ages[0], rt_p99_ms=ages[1], rt_max_ms=ages[2],
                    fresh_pct=100.0 * timing.get("total_fresh_share", math.nan),
                    missed_cycles=timing.get("total_missed_cycles"), timing_covers_s=timing.get("stamp"))
     return fig
@@ -512,6 +514,14 @@ def aba_us_per_call(n: int = 2000, repeats: int = 5) -> float | None:
             fd(q, v, tau)
         best = min(best, time.perf_counter() - t0)
     return best / n * 1e6
+
+
+def warm_up() -> None:
+    """A few offline cycles of the scheme in this process: compiled kernels are built and
+    cached (numba ``cache=True``) before the runs, so that no run's first cycle compiles."""
+    from cr_control.tools.offline import run_scheme
+
+    run_scheme(SCHEME, 0.01)
 
 
 def calibrate() -> dict[str, float | None]:
@@ -823,9 +833,11 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
     mcap = logs / "echo.mcap"
 
     def start(name: str, role: str) -> None:
+        # The source starts once the listener (and the recorder) subscribe to its timing.
+        extra = [] if role == "echo" else ["--timing-subscribers", str(1 + record)] + (
+            ["--wait-for-recorder"] if record else [])
         group.start(name, [sys.executable, "-m", "cr_control.tools.echo_pair", role,
-                           "--duration", str(duration), "--rate", str(rate_hz)]
-                    + (["--wait-for-recorder"] if record and role != "echo" else []))
+                           "--duration", str(duration), "--rate", str(rate_hz), *extra])
 
     fig: dict[str, Any] = {"domain_id": domain, "logs": str(logs), "recorder": record}
     listener = Listener(domain, lambda: {k: p.pid for k, p in list(group.processes.items())})
@@ -1001,6 +1013,8 @@ def main(argv: list[str] | None = None) -> int:
     compute = not args.no_compute_time
     recorder_modules = args.recorder_module or [RECORDER_MODULE]
     t_start = time.monotonic()
+    progress.begin("warm-up")
+    warm_up()
     progress.begin("calibration")
     calibration = {"start": calibrate()}
     progress(f"{calibration['start']['loop_ns']:.1f} ns per loop iteration, "
@@ -1102,6 +1116,7 @@ def main(argv: list[str] | None = None) -> int:
             "targets": [t.as_dict() for t in targets],
             "logs": str(out),
         }
+        args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(json_safe(report), indent=2))
         print(f"json: {args.json}")
     failed = [(t, f) for t, f in realtime + speeds + loads if f.get("error")]

@@ -57,7 +57,7 @@ class EchoSource(Node):
     """Publishes plant-like state at ``rate_hz`` for ``duration`` wall seconds once an echo answers."""
 
     def __init__(self, rate_hz: float = 1000.0, duration: float = 10.0,
-                 wait_for_recorder: bool = False, **kwargs):
+                 wait_for_recorder: bool = False, timing_subscribers: int = 0, **kwargs):
         super().__init__("echo_source", **kwargs)
         self.period = 1.0 / rate_hz
         self.duration = duration
@@ -71,6 +71,7 @@ class EchoSource(Node):
         self._t0 = 0.0
         self.last_report: dict[str, float] = {}
         self.recorder_ready = not wait_for_recorder
+        self._timing_subscribers = timing_subscribers
         if wait_for_recorder:
             self.create_subscription(Bool, topics.RECORDER_READY, self._on_ready, READY_QOS)
 
@@ -94,6 +95,8 @@ class EchoSource(Node):
         if self._started or not self.recorder_ready:
             return
         if self.state_pub.get_subscription_count() < 1 or self.command_sub.get_publisher_count() < 1:
+            return
+        if self.timing_pub.get_subscription_count() < self._timing_subscribers:
             return
         self._started = True
         self._start_timer.cancel()
@@ -294,6 +297,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=float, default=1000.0, help="source rate (Hz, default 1000)")
     p.add_argument("--wait-for-recorder", action="store_true",
                    help="source: start only after the recorder announced it is ready")
+    p.add_argument("--timing-subscribers", type=int, default=0,
+                   help=f"source: start only once this many subscribe to {topics.PLANT_TIMING} "
+                        "(cr_benchmark's listener, the recorder: they see every report)")
     p.add_argument("--controller", default="synthetic",
                    help="synthetic: controller name of the reference/status topics")
     args = p.parse_args(argv)
@@ -308,7 +314,8 @@ def main(argv: list[str] | None = None) -> int:
         nodes.append(Echo())
     source = None
     if args.role in ("source", "both"):
-        source = EchoSource(args.rate, args.duration, args.wait_for_recorder)
+        source = EchoSource(args.rate, args.duration, args.wait_for_recorder,
+                            args.timing_subscribers)
         nodes.append(source)
     spin_nodes(nodes, until=source.finished if source is not None else None)
     return 0
