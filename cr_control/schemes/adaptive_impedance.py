@@ -27,10 +27,10 @@ from cr_control.schemes.references import REFERENCE, packed_reference
 from cr_control.schemes.task_space import (
     TASK_SPACE_PARAMETERS,
     ArmTaskSpace,
-    reference_values,
-    task_space_status,
+    KernelOutput,
     task_state,
     torque_for_acceleration,
+    write_task_space,
 )
 
 #: The scheme's packed gains: the reference block, then the impedance adaptation's.
@@ -40,8 +40,8 @@ _EST = impedance.ESTIMATES
 
 
 @njit(cache=True)
-def adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, n_status, extras_at):
-    """One cycle of (3.32): (tau, reference values, status values)."""
+def adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, out, extras_at):
+    """One cycle of (3.32) into ``out`` (task_space.split_output)."""
     r_d, v_d, a_d, f_d = packed_reference(gains[:_R], t)
     f = force[:2]
     r, r_dot, J, J_inv, jdot_v = task_state(chain, q, v)
@@ -49,9 +49,8 @@ def adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, n_status, 
     impedance_update(gains[_R:_I], state, e, e_dot, dt)
     u0 = a_d + impedance_acceleration(state, e, e_dot)
     tau = torque_for_acceleration(chain, q, v, J, J_inv, jdot_v, u0, f)
-    status = task_space_status(n_status, r, r_dot, f, e, f_d - f, tau)
+    status = write_task_space(out, r_d, v_d, a_d, f_d, r, r_dot, f, e, tau)
     status[extras_at:] = state[_EST]
-    return tau, reference_values(r_d, v_d, a_d, f_d), status
 
 
 class AdaptiveImpedanceController(Controller):
@@ -71,8 +70,9 @@ class AdaptiveImpedanceController(Controller):
         self.pack_gains()
         self.internal = impedance.initial_state(self.values)
         self.adaptation = ImpedanceAdaptation(self.internal)
-        self._n_status = len(self.status_fields) - 1
-        self._extras_at = self._n_status - len(self.extra_status_fields)
+        n_status = len(self.status_fields) - 1
+        self._output = KernelOutput(self.n_joints, n_status)
+        self._extras_at = n_status - len(self.extra_status_fields)
 
     def pack_gains(self) -> None:
         """Copy the current parameter values into the packed gains the kernel reads."""
@@ -84,6 +84,7 @@ class AdaptiveImpedanceController(Controller):
         self.pack_gains()
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
-        return ControlOutput(*adaptive_impedance_cycle(
-            self.task.chain, self.gains, self.internal, t, dt, q, v, force,
-            self._n_status, self._extras_at))
+        out = self._output.new()
+        adaptive_impedance_cycle(self.task.chain, self.gains, self.internal, t, dt, q, v, force,
+                                 out, self._extras_at)
+        return self._output.views(out)

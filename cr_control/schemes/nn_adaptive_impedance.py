@@ -118,8 +118,8 @@ def desired_joint_ranges(task, samples: int = 400) -> tuple[np.ndarray, np.ndarr
 
 @njit(cache=True)
 def nn_adaptive_impedance_cycle(kinematic_chain, gains, state, centres_q, centres_qv, t, dt,
-                                q, v, force, n_status, extras_at):
-    """One cycle of (3.76) with the weight laws (3.79-3.81): (tau, reference, status)."""
+                                q, v, force, out, extras_at):
+    """One cycle of (3.76) with the weight laws (3.79-3.81) into ``out``."""
     (r_d, v_d, a_d, f_d, r, r_dot, J, _, e, e_dot, s, v_eq, a_eq) = sliding_front(
         kinematic_chain, gains, state, t, dt, q, v)
     own = gains[SCHEME_GAINS_AT:]
@@ -141,14 +141,13 @@ def nn_adaptive_impedance_cycle(kinematic_chain, gains, state, centres_q, centre
     C_hat = rbf_network.output(xi_qv, theta_C).reshape((2, 2))
     G_hat = rbf_network.output(xi_q, theta_G)
     model_terms = matvec(M_hat, a_eq) + matvec(C_hat, v_eq) + G_hat
-    tau, reference, status = sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d,
-                                          f_d, r, r_dot, J, e, s, n_status, extras_at)
+    status = sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J,
+                          e, s, out, extras_at)
     k = extras_at + _N_SLIDING
     status[k:k + 6] = np.nan   # the true norms: filled by the node's Python side if wanted
     status[k + 1] = spectral_norm_2x2(M_hat)
     status[k + 3] = spectral_norm_2x2(C_hat)
     status[k + 5] = math.hypot(G_hat[0], G_hat[1])
-    return tau, reference, status
 
 
 class NNAdaptiveImpedanceController(SlidingImpedanceController):
@@ -183,9 +182,11 @@ class NNAdaptiveImpedanceController(SlidingImpedanceController):
         return {**self.values, "inv_variance": 1.0 / self.values["rbf_variance"]}
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
-        out = ControlOutput(*nn_adaptive_impedance_cycle(
-            self.kinematic_chain, self.gains, self.internal, self.centres_q, self.centres_qv,
-            t, dt, q, v, force, self._n_status, self._extras_at))
+        vector = self._output.new()
+        nn_adaptive_impedance_cycle(self.kinematic_chain, self.gains, self.internal,
+                                    self.centres_q, self.centres_qv, t, dt, q, v, force, vector,
+                                    self._extras_at)
+        out = self._output.views(vector)
         if self.values["publish_true_norms"]:
             M_r, C_r, G_r = self.task.dynamics(q, v, self.task.state(q, v))
             k = self._norms_at

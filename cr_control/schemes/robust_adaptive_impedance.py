@@ -70,9 +70,8 @@ ROBUST_GAINS = Layout(delta_M=1, delta_C=1, delta_G=1, delta_f=1)
 
 
 @njit(cache=True)
-def robust_adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, n_status,
-                                    extras_at):
-    """One cycle of (3.48): (tau, reference values, status values)."""
+def robust_adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, out, extras_at):
+    """One cycle of (3.48) into ``out`` (task_space.split_output)."""
     (r_d, v_d, a_d, f_d, r, r_dot, J, J_inv, e, e_dot, s, v_eq, a_eq) = sliding_front(
         chain, gains, state, t, dt, q, v)
     delta_M, delta_C, delta_G, delta_f = (gains[SCHEME_GAINS_AT], gains[SCHEME_GAINS_AT + 1],
@@ -81,8 +80,8 @@ def robust_adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, n_s
          + delta_G + delta_f)                                                      # 3.51
     M_r, C_r, G_r = task_dynamics(chain, q, v, J_inv)
     model_terms = matvec(M_r, a_eq) + matvec(C_r, v_eq) + G_r
-    return sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J,
-                        e, s, n_status, extras_at)
+    sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J, e, s,
+                 out, extras_at)
 
 
 class RobustAdaptiveImpedanceController(SlidingImpedanceController):
@@ -98,6 +97,7 @@ class RobustAdaptiveImpedanceController(SlidingImpedanceController):
     SCHEME_GAINS = ROBUST_GAINS
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
-        return ControlOutput(*robust_adaptive_impedance_cycle(
-            self.task.chain, self.gains, self.internal, t, dt, q, v, force, self._n_status,
-            self._extras_at))
+        out = self._output.new()
+        robust_adaptive_impedance_cycle(self.task.chain, self.gains, self.internal, t, dt, q, v,
+                                        force, out, self._extras_at)
+        return self._output.views(out)

@@ -56,9 +56,9 @@ from cr_control.schemes.impedance_adaptation import ImpedanceAdaptation, impedan
 from cr_control.schemes.references import REFERENCE, packed_reference
 from cr_control.schemes.task_space import (
     ArmTaskSpace,
-    reference_values,
-    task_space_status,
+    KernelOutput,
     task_state,
+    write_task_space,
 )
 
 #: Status fields of the sliding-mode part, before the scheme's own and ESTIMATE_FIELDS.
@@ -164,21 +164,20 @@ def sliding_front(chain, gains, state, t, dt, q, v):
 
 @njit(cache=True)
 def sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J, e, s,
-                 n_status, extras_at):
-    """u = model_terms + K_s s + d sat(s/Delta) - f, tau = J^T u (3.48, 3.76); returns
-    (tau, reference values, status with the sliding fields and the estimates filled)."""
+                 out, extras_at):
+    """u = model_terms + K_s s + d sat(s/Delta) - f, tau = J^T u (3.48, 3.76) into ``out``
+    with the sliding fields and the estimates of the status filled; returns the status."""
     sliding = gains[_I:_S]
     f = force[:2]
     u = (model_terms + matvec(block2(sliding, _KS), s)
          + d * boundary_layer_sign(s, sliding[_DELTA]) - f)
     tau = tmatvec(J, u)
-    status = task_space_status(n_status, r, r_dot, f, e, f_d - f, tau)
-    k = n_status - _N_EST
+    status = write_task_space(out, r_d, v_d, a_d, f_d, r, r_dot, f, e, tau)
     status[extras_at:extras_at + 2] = s
     status[extras_at + 2:extras_at + 4] = state[_IS:_IS + 2]
     status[extras_at + 4] = d
-    status[k:] = state[_EST]
-    return tau, reference_values(r_d, v_d, a_d, f_d), status
+    status[status.shape[0] - _N_EST:] = state[_EST]
+    return status
 
 
 def sliding_gains_layout(scheme_gains: Layout) -> Layout:
@@ -206,8 +205,9 @@ class SlidingImpedanceController(Controller):
         self.internal = np.concatenate([impedance.initial_state(self.values),
                                         np.zeros(SLIDING_STATE.size), extra])
         self.adaptation = ImpedanceAdaptation(self.internal[:_IS])
-        self._n_status = len(self.status_fields) - 1
-        self._extras_at = self._n_status - len(self.extra_status_fields)
+        n_status = len(self.status_fields) - 1
+        self._output = KernelOutput(self.n_joints, n_status)
+        self._extras_at = n_status - len(self.extra_status_fields)
 
     @property
     def z(self) -> np.ndarray:

@@ -13,6 +13,7 @@ from numba import njit
 
 from cr_control.core.linalg import inv2, matmul, matvec, tmatvec
 from cr_control.core.parameters import Param
+from cr_control.schemes.controller import ControlOutput
 from cr_control.schemes.references import CHAPTER3_REFERENCE, chapter3_reference
 from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
 from cr_sim.models.planar_chain import (
@@ -126,20 +127,49 @@ class ArmTaskSpace:
         return task_dynamics(self.chain, q, v, ts.J_inv)
 
 
+#: Where a cycle kernel writes its results in the one output vector the scheme allocates per
+#: cycle (boxing three returned arrays costs ~100 interpreter loop iterations, slicing one
+#: vector ~10): [command (n) | reference values (8) | status values].
+N_REFERENCE = 8
+
+
+class KernelOutput:
+    """The one output vector a scheme's cycle kernel fills, fresh each cycle (a held command
+    keeps referring to the last good one): sizes from the scheme, views for ControlOutput."""
+
+    def __init__(self, n_joints: int, n_status: int):
+        self.n = n_joints
+        self.size = n_joints + N_REFERENCE + n_status
+
+    def new(self) -> np.ndarray:
+        """An output vector for one cycle."""
+        return np.empty(self.size)
+
+    def views(self, out: np.ndarray) -> ControlOutput:
+        """command, reference and status views of a filled output vector."""
+        n = self.n
+        return ControlOutput(out[:n], out[n:n + N_REFERENCE], out[n + N_REFERENCE:])
+
+
 @njit(cache=True)
-def task_space_status(n_status, r, r_dot, f, e, f_err, tau):
-    """A status vector (topics.STATUS_FIELDS after ``stamp``, then the scheme's own fields)
-    with the task-space values filled in; timing, ``held`` and the extras left at 0."""
-    status = np.zeros(n_status)
+def split_output(out, n):
+    """(command, reference, status) views of a cycle's output vector."""
+    return out[:n], out[n:n + N_REFERENCE], out[n + N_REFERENCE:]
+
+
+@njit(cache=True)
+def write_task_space(out, r_d, v_d, a_d, f_d, r, r_dot, f, e, tau):
+    """Fill the output vector: command tau, reference (topics.REFERENCE_FIELDS after stamp)
+    and the task-space part of the status (topics.STATUS_FIELDS after stamp); the rest of
+    the status (timing, held, the scheme's fields) is zeroed for the caller to fill."""
+    n = tau.shape[0]
+    command, reference, status = split_output(out, n)
+    command[:] = tau
+    reference[0:2], reference[2:4], reference[4:6], reference[6:8] = r_d, v_d, a_d, f_d
+    status[:] = 0.0
     for i in range(2):
         status[i], status[2 + i], status[4 + i] = r[i], r_dot[i], f[i]
-        status[6 + i], status[8 + i], status[10 + i] = e[i], f_err[i], tau[i]
+        status[6 + i], status[8 + i] = e[i], f_d[i] - f[i]
+    for i in range(n):
+        status[10 + i] = tau[i]
     return status
-
-
-@njit(cache=True)
-def reference_values(r_d, v_d, a_d, f_d):
-    """Values of topics.REFERENCE_FIELDS after ``stamp``."""
-    out = np.empty(8)
-    out[0:2], out[2:4], out[4:6], out[6:8] = r_d, v_d, a_d, f_d
-    return out

@@ -18,11 +18,14 @@ The packed parameter vector ``chain`` (float64) is laid out as
     [n, g_x, g_y, t_x, t_y, then per link: a_x, a_y, rho_x, rho_y, m, I]
 so one array carries the whole model into a kernel.
 
-Kernels (all take ``chain`` first):
+Kernels (all take ``chain`` first; the ``*_geo``/``*_into`` forms share one geometry pass
+and write into caller-provided arrays, for the plants' allocation-free RK4 stages):
     rnea(chain, q, v, a, gravity_on) -> tau   recursive Newton-Euler, tau = M a + C v + G
-    mass_matrix(chain, q) -> M                 from n RNEA passes (v = 0, no gravity)
+    mass_matrix(chain, q) -> M                 sum of m_k J_ck^T J_ck + I_k a_k a_k^T
     forward_dynamics(chain, q, v, tau) -> q''  M q'' = tau - (C v + G), Cholesky
     tool_kinematics(chain, q, v) -> (r, J, J' v)
+    coriolis_matrix(chain, q, v) -> C           Christoffel form
+    tool_jacobian_dot(chain, q, v) -> J'
 """
 
 from __future__ import annotations
@@ -40,96 +43,97 @@ HEADER = 5   # n, g_x, g_y, t_x, t_y
 PER_LINK = 6  # a_x, a_y, rho_x, rho_y, m, I
 
 
-@njit(cache=True)
-def _link(chain, i):
-    k = HEADER + PER_LINK * i
-    return chain[k], chain[k + 1], chain[k + 2], chain[k + 3], chain[k + 4], chain[k + 5]
+#: Rows of the geometry block (8 x n) computed once per configuration and shared by the
+#: algorithms below: joint origin p_i, rotated link vector e_i = R(phi_i) a_i, rotated
+#: centre-of-mass offset R(phi_i) rho_i, cos and sin of phi_i.
+GEOMETRY_ROWS = 8
 
 
 @njit(cache=True)
-def _rnea_into(chain, q, v, a, gravity_on, scratch, tau):
+def geometry_into(chain, q, geo):
+    """Fill ``geo`` (GEOMETRY_ROWS x n) for configuration q."""
+    n = int(chain[0])
+    x = y = phi = 0.0
+    for i in range(n):
+        k = HEADER + PER_LINK * i
+        phi += q[i]
+        c, s = math.cos(phi), math.sin(phi)
+        geo[0, i], geo[1, i] = x, y
+        geo[2, i], geo[3, i] = c * chain[k] - s * chain[k + 1], s * chain[k] + c * chain[k + 1]
+        geo[4, i], geo[5, i] = c * chain[k + 2] - s * chain[k + 3], s * chain[k + 2] + c * chain[k + 3]
+        geo[6, i], geo[7, i] = c, s
+        x, y = x + geo[2, i], y + geo[3, i]
+
+
+@njit(cache=True)
+def rnea_geo(chain, geo, v, a, gravity_on, scratch, tau):
     """tau = M(q) a + C(q, v) v + G(q) (G only if ``gravity_on``): 2-D recursive Newton-Euler.
 
     Forward pass: angular rate w_i, acceleration al_i and the linear acceleration of the joint
     origins (a base acceleration of -g carries gravity); backward pass: the force f and moment
-    n that link i+1 exerts on link i. ``scratch`` holds >= 8 n floats (no allocation here).
+    n that link i+1 exerts on link i. ``scratch`` holds >= 3 n floats; nothing is allocated.
     """
     n = int(chain[0])
     al, acx, acy = scratch[:n], scratch[n:2 * n], scratch[2 * n:3 * n]
-    cx, cy, ex, ey = scratch[3 * n:4 * n], scratch[4 * n:5 * n], scratch[5 * n:6 * n], scratch[6 * n:7 * n]
     ax = -chain[1] if gravity_on else 0.0
     ay = -chain[2] if gravity_on else 0.0
-    phi = wi = ali = 0.0
+    wi = ali = 0.0
     for i in range(n):
-        k = HEADER + PER_LINK * i
-        phi += q[i]
         wi += v[i]
         ali += a[i]
-        c, s = math.cos(phi), math.sin(phi)
         al[i] = ali
-        cx[i], cy[i] = c * chain[k + 2] - s * chain[k + 3], s * chain[k + 2] + c * chain[k + 3]
-        ex[i], ey[i] = c * chain[k] - s * chain[k + 1], s * chain[k] + c * chain[k + 1]
         w2 = wi * wi
-        acx[i] = ax - ali * cy[i] - w2 * cx[i]
-        acy[i] = ay + ali * cx[i] - w2 * cy[i]
-        ax, ay = ax - ali * ey[i] - w2 * ex[i], ay + ali * ex[i] - w2 * ey[i]
+        acx[i] = ax - ali * geo[5, i] - w2 * geo[4, i]
+        acy[i] = ay + ali * geo[4, i] - w2 * geo[5, i]
+        ax, ay = ax - ali * geo[3, i] - w2 * geo[2, i], ay + ali * geo[2, i] - w2 * geo[3, i]
     fx = fy = nz = 0.0
     for i in range(n - 1, -1, -1):
         k = HEADER + PER_LINK * i
         mfx, mfy = chain[k + 4] * acx[i], chain[k + 4] * acy[i]
         # moment about joint i: I al + rho x m a_c + a_i x f_{i+1} + n_{i+1}
-        nz = chain[k + 5] * al[i] + cx[i] * mfy - cy[i] * mfx + ex[i] * fy - ey[i] * fx + nz
+        nz = (chain[k + 5] * al[i] + geo[4, i] * mfy - geo[5, i] * mfx + geo[2, i] * fy
+              - geo[3, i] * fx + nz)
         fx, fy = mfx + fx, mfy + fy
         tau[i] = nz
 
 
 @njit(cache=True)
-def rnea(chain, q, v, a, gravity_on):
-    """tau = M(q) a + C(q, v) v + G(q) (G only if ``gravity_on``)."""
-    n = int(chain[0])
-    tau = np.empty(n)
-    _rnea_into(chain, q, v, a, gravity_on, np.empty(8 * n), tau)
-    return tau
-
-
-@njit(cache=True)
-def _mass_matrix_into(chain, q, scratch, M):
+def mass_matrix_geo(chain, geo, M):
     """M(q) = sum_k m_k J_ck^T J_ck + I_k a_k a_k^T, with the centre-of-mass Jacobian columns
-    dc_k/dq_i = perp(c_k - p_i) for i <= k (planar revolute chain); scratch >= 4 n floats."""
+    dc_k/dq_i = perp(c_k - p_i) for i <= k (planar revolute chain)."""
     n = int(chain[0])
-    px, py, cx, cy = scratch[:n], scratch[n:2 * n], scratch[2 * n:3 * n], scratch[3 * n:4 * n]
-    x = y = phi = 0.0
-    for i in range(n):
-        k = HEADER + PER_LINK * i
-        px[i], py[i] = x, y
-        phi += q[i]
-        c, s = math.cos(phi), math.sin(phi)
-        cx[i] = x + c * chain[k + 2] - s * chain[k + 3]
-        cy[i] = y + s * chain[k + 2] + c * chain[k + 3]
-        x, y = x + c * chain[k] - s * chain[k + 1], y + s * chain[k] + c * chain[k + 1]
     for i in range(n):
         for j in range(i + 1):
             total = 0.0
             for k in range(i, n):
                 base = HEADER + PER_LINK * k
-                total += (chain[base + 4] * ((cx[k] - px[i]) * (cx[k] - px[j])
-                                             + (cy[k] - py[i]) * (cy[k] - py[j]))
+                cx, cy = geo[0, k] + geo[4, k], geo[1, k] + geo[5, k]
+                total += (chain[base + 4] * ((cx - geo[0, i]) * (cx - geo[0, j])
+                                             + (cy - geo[1, i]) * (cy - geo[1, j]))
                           + chain[base + 5])
             M[i, j] = total
             M[j, i] = total
 
 
 @njit(cache=True)
-def mass_matrix(chain, q):
-    """M(q), symmetric positive definite."""
+def tool_geo(chain, geo, v, J, out):
+    """Tool position r (out[0:2]), Jacobian J (2 x n, r' = J q', column j = perp(r - p_j)) and
+    J'(q, q') q' (out[2:4], the tool's acceleration at q'' = 0: a_{i+1} = a_i - w_i^2 e_i)."""
     n = int(chain[0])
-    M = np.empty((n, n))
-    _mass_matrix_into(chain, q, np.empty(4 * n), M)
-    return M
+    c, s = geo[6, n - 1], geo[7, n - 1]
+    tx, ty = c * chain[3] - s * chain[4], s * chain[3] + c * chain[4]
+    x, y = geo[0, n - 1] + tx, geo[1, n - 1] + ty
+    wi = ax = ay = 0.0
+    for i in range(n):
+        wi += v[i]
+        ex, ey = (tx, ty) if i == n - 1 else (geo[2, i], geo[3, i])
+        ax, ay = ax - wi * wi * ex, ay - wi * wi * ey
+        J[0, i], J[1, i] = -(y - geo[1, i]), x - geo[0, i]
+    out[0], out[1], out[2], out[3] = x, y, ax, ay
 
 
 @njit(cache=True)
-def _solve_spd_into(M, b, x):
+def solve_spd_into(M, b, x):
     """x with M x = b for a symmetric positive-definite M: Cholesky in place (M is overwritten
     by its factor L in the lower triangle), no pivoting, no allocation."""
     n = b.shape[0]
@@ -152,55 +156,73 @@ def _solve_spd_into(M, b, x):
 
 
 @njit(cache=True)
+def forward_dynamics_geo(chain, geo, v, tau, work, qdd):
+    """q'' from M q'' + C q' + G = tau into ``qdd`` for the configuration whose geometry is
+    ``geo``: one RNEA for C q' + G, the mass matrix from the centre-of-mass Jacobians,
+    Cholesky. ``work`` holds >= 6 n + n^2 floats; nothing is allocated."""
+    n = int(chain[0])
+    zero, h, rhs = work[:n], work[n:2 * n], work[2 * n:3 * n]
+    zero[:] = 0.0
+    rnea_geo(chain, geo, v, zero, True, work[3 * n:6 * n], h)
+    for i in range(n):
+        rhs[i] = tau[i] - h[i]
+    M = work[6 * n:6 * n + n * n].reshape((n, n))
+    mass_matrix_geo(chain, geo, M)
+    solve_spd_into(M, rhs, qdd)
+
+
+# -- allocating entry points (tests, controllers, Python) -------------------------------------
+@njit(cache=True)
+def rnea(chain, q, v, a, gravity_on):
+    """tau = M(q) a + C(q, v) v + G(q) (G only if ``gravity_on``)."""
+    n = int(chain[0])
+    work = np.empty(GEOMETRY_ROWS * n + 3 * n)
+    geo = work[:GEOMETRY_ROWS * n].reshape((GEOMETRY_ROWS, n))
+    geometry_into(chain, q, geo)
+    tau = np.empty(n)
+    rnea_geo(chain, geo, v, a, gravity_on, work[GEOMETRY_ROWS * n:], tau)
+    return tau
+
+
+@njit(cache=True)
+def mass_matrix(chain, q):
+    """M(q), symmetric positive definite."""
+    n = int(chain[0])
+    geo = np.empty((GEOMETRY_ROWS, n))
+    geometry_into(chain, q, geo)
+    M = np.empty((n, n))
+    mass_matrix_geo(chain, geo, M)
+    return M
+
+
+@njit(cache=True)
 def solve_spd(M, b):
     """x with M x = b for a symmetric positive-definite M (M is left unchanged)."""
     x = np.empty(b.shape[0])
-    _solve_spd_into(M.copy(), b, x)
+    solve_spd_into(M.copy(), b, x)
     return x
 
 
 @njit(cache=True)
 def forward_dynamics(chain, q, v, tau):
-    """q'' from M q'' + C q' + G = tau (one RNEA for C q' + G, the mass matrix from the
-    centre-of-mass Jacobians, Cholesky): one allocation for the scratch, one for q''."""
+    """q'' from M q'' + C q' + G = tau."""
     n = int(chain[0])
-    scratch = np.empty(10 * n + n * n)
-    h = scratch[8 * n:9 * n]
-    zero = scratch[9 * n:10 * n]
-    zero[:] = 0.0
-    _rnea_into(chain, q, v, zero, True, scratch, h)
-    rhs = scratch[9 * n:10 * n]
-    for i in range(n):
-        rhs[i] = tau[i] - h[i]
-    M = scratch[10 * n:].reshape((n, n))
-    _mass_matrix_into(chain, q, scratch, M)
+    geo = np.empty((GEOMETRY_ROWS, n))
+    geometry_into(chain, q, geo)
     qdd = np.empty(n)
-    _solve_spd_into(M, rhs, qdd)
+    forward_dynamics_geo(chain, geo, v, tau, np.empty(6 * n + n * n), qdd)
     return qdd
 
 
 @njit(cache=True)
 def tool_kinematics(chain, q, v):
-    """Tool position r, Jacobian J (2 x n, r' = J q', column j = perp(r - p_j)) and
-    J'(q, q') q' (the tool's acceleration at q'' = 0: a_{i+1} = a_i - w_i^2 e_i)."""
+    """Tool position r, Jacobian J (2 x n, r' = J q') and J'(q, q') q'."""
     n = int(chain[0])
+    geo = np.empty((GEOMETRY_ROWS, n))
+    geometry_into(chain, q, geo)
     J = np.empty((2, n))
-    out = np.empty(4)   # r, J' q'
-    x = y = phi = wi = ax = ay = 0.0
-    for i in range(n):
-        k = HEADER + PER_LINK * i
-        J[0, i], J[1, i] = x, y   # joint origins for now
-        phi += q[i]
-        wi += v[i]
-        c, s = math.cos(phi), math.sin(phi)
-        lx, ly = (chain[3], chain[4]) if i == n - 1 else (chain[k], chain[k + 1])
-        ex, ey = c * lx - s * ly, s * lx + c * ly
-        ax, ay = ax - wi * wi * ex, ay - wi * wi * ey
-        x, y = x + ex, y + ey
-    for j in range(n):
-        px, py = J[0, j], J[1, j]
-        J[0, j], J[1, j] = -(y - py), x - px
-    out[0], out[1], out[2], out[3] = x, y, ax, ay
+    out = np.empty(4)
+    tool_geo(chain, geo, v, J, out)
     return out[:2], J, out[2:]
 
 

@@ -20,7 +20,15 @@ from numba import njit
 
 from cr_control.core.parameters import Param, ParameterError
 from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
-from cr_sim.models.planar_chain import PlanarChain, forward_dynamics, matvec, tool_kinematics
+from cr_sim.models.planar_chain import (
+    GEOMETRY_ROWS,
+    PlanarChain,
+    forward_dynamics_geo,
+    geometry_into,
+    matvec,
+    tool_geo,
+    tool_kinematics,
+)
 from cr_sim.models.surfaces import surface_contact
 from cr_sim.plants.base import Measurement, Plant
 
@@ -84,24 +92,38 @@ def _disturbance(disturbance, t):
     return amplitude_x, amplitude_y
 
 
+def work_size(n: int) -> int:
+    """Scratch floats of one plant step for an n-link arm (allocated once per plant)."""
+    return GEOMETRY_ROWS * n + (6 * n + n * n) + 2 * n + 4 + n + 5 * 2 * n
+
+
 @njit(cache=True)
-def _derivative(chain, surface, disturbance, t, x, tau):
-    """x' = [q', q''] with the contact and disturbance forces at the tool."""
+def _derivative_into(chain, surface, disturbance, t, x, tau, work, out):
+    """out = x' = [q', q''] with the contact and disturbance forces at the tool; ``work``
+    holds work_size(n) floats (the RK4 buffers at its end are not touched)."""
     n = x.shape[0] // 2
     q, v = x[:n], x[n:]
-    r, J, _ = tool_kinematics(chain, q, v)
-    r_dot = matvec(J, v)
-    fx, fy, _, _, _ = surface_contact(surface, r[0], r[1], r_dot[0], r_dot[1])
+    g = GEOMETRY_ROWS * n
+    geo = work[:g].reshape((GEOMETRY_ROWS, n))
+    fd_work = work[g:g + 6 * n + n * n]
+    k = g + 6 * n + n * n
+    J = work[k:k + 2 * n].reshape((2, n))
+    tool = work[k + 2 * n:k + 2 * n + 4]
+    total = work[k + 2 * n + 4:k + 3 * n + 4]
+    geometry_into(chain, q, geo)
+    tool_geo(chain, geo, v, J, tool)
+    vx = vy = 0.0
+    for j in range(n):
+        vx += J[0, j] * v[j]
+        vy += J[1, j] * v[j]
+    fx, fy, _, _, _ = surface_contact(surface, tool[0], tool[1], vx, vy)
     dx, dy = _disturbance(disturbance, t)
     fx += dx
     fy += dy
-    total = tau.copy()
     for j in range(n):
-        total[j] += J[0, j] * fx + J[1, j] * fy
-    out = np.empty(2 * n)
-    out[:n] = v
-    out[n:] = forward_dynamics(chain, q, v, total)
-    return out
+        total[j] = tau[j] + J[0, j] * fx + J[1, j] * fy
+        out[j] = v[j]
+    forward_dynamics_geo(chain, geo, v, total, fd_work, out[n:])
 
 
 @njit(cache=True)
@@ -115,19 +137,39 @@ def _sensors(chain, surface, x, out):
 
 
 @njit(cache=True)
-def arm_on_surface_step(chain, surface, disturbance, t, x, tau, dt, substeps, sensors):
-    """x after ``dt`` with ``tau`` held: ``substeps`` classical RK4 steps; writes SENSORS at
-    the new state into ``sensors``."""
+def arm_on_surface_step(chain, surface, disturbance, t, x, tau, command, dt, substeps, sensors,
+                        work):
+    """Take ``command`` as the held torque ``tau`` if it has one finite value per joint
+    (else keep the last), advance x in place by ``dt``: ``substeps`` classical RK4 steps;
+    write SENSORS at the new state into ``sensors``. Returns whether the command was taken."""
+    accepted = command.shape[0] == tau.shape[0]
+    if accepted:
+        for j in range(tau.shape[0]):
+            if not math.isfinite(command[j]):
+                accepted = False
+    if accepted:
+        tau[:] = command
+    m = x.shape[0]
+    rk = work.shape[0] - 5 * m
+    k1, k2, k3 = work[rk:rk + m], work[rk + m:rk + 2 * m], work[rk + 2 * m:rk + 3 * m]
+    k4, xs = work[rk + 3 * m:rk + 4 * m], work[rk + 4 * m:rk + 5 * m]
     h = dt / substeps
     for i in range(substeps):
         ti = t + i * h
-        k1 = _derivative(chain, surface, disturbance, ti, x, tau)
-        k2 = _derivative(chain, surface, disturbance, ti + 0.5 * h, x + (0.5 * h) * k1, tau)
-        k3 = _derivative(chain, surface, disturbance, ti + 0.5 * h, x + (0.5 * h) * k2, tau)
-        k4 = _derivative(chain, surface, disturbance, ti + h, x + h * k3, tau)
-        x = x + (h / 6.0) * (k1 + k4 + 2.0 * (k2 + k3))
+        _derivative_into(chain, surface, disturbance, ti, x, tau, work, k1)
+        for j in range(m):
+            xs[j] = x[j] + 0.5 * h * k1[j]
+        _derivative_into(chain, surface, disturbance, ti + 0.5 * h, xs, tau, work, k2)
+        for j in range(m):
+            xs[j] = x[j] + 0.5 * h * k2[j]
+        _derivative_into(chain, surface, disturbance, ti + 0.5 * h, xs, tau, work, k3)
+        for j in range(m):
+            xs[j] = x[j] + h * k3[j]
+        _derivative_into(chain, surface, disturbance, ti + h, xs, tau, work, k4)
+        for j in range(m):
+            x[j] = x[j] + (h / 6.0) * (k1[j] + k4[j] + 2.0 * (k2[j] + k3[j]))
     _sensors(chain, surface, x, sensors)
-    return x
+    return accepted
 
 
 class ArmOnSurface(Plant):
@@ -160,6 +202,7 @@ class ArmOnSurface(Plant):
         self._t = 0.0
         self._effort = np.zeros(n)
         self.sensors = np.zeros(len(SENSORS))
+        self._work = np.empty(work_size(n))
         self.reset_state(q0)
 
     def reset_state(self, q0, v0=None) -> None:
@@ -184,10 +227,8 @@ class ArmOnSurface(Plant):
 
     def step(self, command: np.ndarray, dt: float) -> None:
         """Advance by dt with joint torques ``command`` held (a refused command keeps the last)."""
-        if self.accept(command):
-            self._effort = np.array(command, dtype=float)
-        self._x = arm_on_surface_step(self.chain, self.surface, self.disturbance_packed, self._t,
-                                      self._x, self._effort, dt, self.substeps, self.sensors)
+        arm_on_surface_step(self.chain, self.surface, self.disturbance_packed, self._t, self._x,
+                            self._effort, command, dt, self.substeps, self.sensors, self._work)
         self._t += dt
 
     def measurement(self) -> Measurement:
