@@ -310,3 +310,15 @@ def test_stamps_on_another_clock_are_plotted_as_they_are(tmp_path):
                                timing={"stamp": np.array([1.0, 2.0])})
     np.testing.assert_allclose(session.relative_time(session.status["stamp"]), [0.0, 1.0])
     np.testing.assert_allclose(session.relative_time(session.timing["stamp"]), [1.0, 2.0])
+
+
+def test_loop_summary_warns_plainly_when_a_real_time_loop_fell_behind():
+    good = {"loop_fresh_share": 0.998, "loop_rate_mean_hz": 999.2, "loop_age_p50_ms": 0.2,
+            "loop_age_p99_ms": 0.6}
+    lines = analysis.loop_summary(good)
+    assert len(lines) == 1 and "999.2 Hz" in lines[0] and "99.80 %" in lines[0]
+    behind = dict(good, loop_fresh_share=0.40)
+    assert "WARNING" in analysis.loop_summary(behind)[-1]
+    assert "WARNING" in analysis.loop_summary(dict(good, loop_rate_mean_hz=660.0))[-1]
+    assert len(analysis.loop_summary(behind, realtime=False)) == 1  # lockstep: no deadline
+    assert analysis.loop_summary({}) == []

@@ -544,6 +544,29 @@ def integrity_warnings(values: dict[str, Any]) -> list[str]:
     return found
 
 
+#: A real-time loop "fell behind" below these (the README's targets for this machine).
+BEHIND_FRESH_SHARE = 0.95
+BEHIND_RATE_HZ = 990.0
+
+
+def loop_summary(values: dict[str, Any], realtime: bool = True) -> list[str]:
+    """The plant loop in one line, then a plain warning if a real-time loop fell behind
+    (rate below BEHIND_RATE_HZ or fewer than BEHIND_FRESH_SHARE of the cycles with a command
+    computed from the state before). Empty without plant timing."""
+    if "loop_fresh_share" not in values:
+        return []
+    rate = values.get("loop_rate_mean_hz", values.get("loop_rate_hz", math.nan))
+    fresh = values["loop_fresh_share"]
+    lines = [f"loop: {rate:.1f} Hz, {100 * fresh:.2f} % of cycles with a fresh command, "
+             f"round trip p50/p99 {values.get('loop_age_p50_ms', math.nan):.3f}/"
+             f"{values.get('loop_age_p99_ms', math.nan):.3f} ms"]
+    if realtime and (fresh < BEHIND_FRESH_SHARE or rate < BEHIND_RATE_HZ):
+        lines.append(f"WARNING: the real-time loop fell behind ({rate:.0f} Hz, "
+                     f"{100 * (1 - fresh):.1f} % of cycles applied a stale command): the "
+                     "machine was too busy for 1 kHz; see the timing plot and `make benchmark`")
+    return lines
+
+
 def _format_value(value: Any) -> str:
     if value is None:
         return "-"

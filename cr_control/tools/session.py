@@ -73,6 +73,7 @@ class SessionResult:
     mcap: Path | None
     params: Path
     logs: Path
+    mode: str = "realtime"
 
 
 #: Parameters the recorder node declares (cr_control/recording/recorder.py; a test
@@ -396,7 +397,8 @@ class Session:
                 self.stop()
         finally:
             self.domain.release()
-        return SessionResult(self.dir, self.mcap if cfg.record else None, self.params_path, self.logs)
+        return SessionResult(self.dir, self.mcap if cfg.record else None, self.params_path, self.logs,
+                             cfg.mode)
 
     def stop(self) -> None:
         """Stop every process still running: SIGINT, then SIGKILL after a timeout."""
@@ -412,7 +414,10 @@ def analyse(result: SessionResult, progress=print) -> None:
         session = load_session(result.mcap)
     except analyze.SessionError as exc:
         raise SessionError(f"cannot analyse the recording: {exc}") from None
-    progress(format_metrics([(session.controller or result.directory.name, metrics(session))]))
+    values = metrics(session)
+    progress(format_metrics([(session.controller or result.directory.name, values)]))
+    for line in analyze.loop_summary(values, realtime=result.mode == "realtime"):
+        progress(line)
     paths = plot_session(session, result.directory / "plots")
     progress(f"plots: {', '.join(str(p) for p in paths)}")
 
