@@ -2,7 +2,9 @@
 
 Round trip ("command age"): wall time from publishing a state to receiving the command
 computed from it. A cycle is fresh when the command applied at a tick answers the state
-published at the tick before.
+published at the tick before. The plant node also reports its safety state here (safe
+stop, commands clipped and refused, publishers on its topics): attributes it sets, so
+every loop that uses these statistics publishes the same PLANT_TIMING_FIELDS.
 """
 
 from __future__ import annotations
@@ -25,7 +27,16 @@ class LoopStats:
         self._window_cycles = 0
         self._window_fresh = 0
         self._window_step_time = 0.0
+        self._window_publish_time = 0.0
         self._window_start: float | None = None
+        #: Safety state, set by the plant node (0 where a loop has none).
+        self.safe_stop = 0.0
+        self.commands_clipped = 0
+        self.commands_refused = 0
+        self.command_publishers = 0
+        self.state_publishers = 0
+        #: Longest run of consecutive ticks without a new command in the window.
+        self.window_max_missed_run = 0
 
     def cycle(self, fresh: bool, step_time: float = 0.0) -> None:
         """Count one tick of the loop; ``step_time`` (s) is the time spent computing it."""
@@ -34,6 +45,10 @@ class LoopStats:
         self.total_fresh += fresh
         self._window_fresh += fresh
         self._window_step_time += step_time
+
+    def published(self, publish_time: float) -> None:
+        """Add the time (s) one cycle spent building and publishing its outgoing messages."""
+        self._window_publish_time += publish_time
 
     def round_trip(self, age: float) -> None:
         """Record one state -> command round trip (s)."""
@@ -69,10 +84,18 @@ class LoopStats:
             self._total_percentile(99) * 1e3,
             self.total_max_age * 1e3,
             self._window_step_time / cycles * 1e6,
+            self._window_publish_time / cycles * 1e6,
+            float(self.safe_stop),
+            float(self.commands_clipped),
+            float(self.commands_refused),
+            float(self.command_publishers),
+            float(self.state_publishers),
+            float(self.window_max_missed_run),
         ]
         self._window_ages.clear()
         self._window_cycles = self._window_fresh = 0
-        self._window_step_time = 0.0
+        self._window_step_time = self._window_publish_time = 0.0
+        self.window_max_missed_run = 0
         self._window_start = now
         return values
 

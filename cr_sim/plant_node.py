@@ -8,6 +8,30 @@
 Publishes /joint_states, the force/torque sensor wrench (same stamp), per-second loop
 statistics on /plant/timing, and stops by itself after ``duration`` seconds of
 simulated time (0 = run until stopped).
+
+Safety (issue 7), modelled on libfranka:
+
+- Commands must name exactly the plant's joints, one finite value each; anything else
+  is refused (counted in ``commands_refused``) and the last good command stays.
+- Every command is clipped into the joint limits (``effort_limit``, by default the
+  URDF's ``<limit effort>``) and the rate limit (``effort_rate_limit``, libfranka's
+  1000 N m/s) before it reaches the simulation (counted in ``commands_clipped``).
+  Position-interface plants get the URDF's position limits and velocity limit instead.
+- Watchdog (realtime only; lockstep waits for commands and resends instead): a tick
+  with no new command since the previous one reuses the last command; after
+  ``watchdog_missed_cycles`` such ticks in a row the reaction is a **safe stop** (the
+  plant's brakes, :meth:`~cr_sim.plants.base.Plant.safe_stop_command`: gravity held,
+  joints damped to rest and held), ``hold`` (keep the last command) or ``disabled``. The
+  safe stop is logged once with its reason, shows as ``safe_stop`` = 1 in /plant/timing
+  and lasts until someone sets the parameter ``resume`` to true (``cr_param set plant
+  resume true``); the plant then resets ``resume`` to false and applies commands again.
+- Another publisher on /joint_commands or /joint_states (a second session on this
+  domain, a rogue node) is checked once a second: warned once and counted in
+  ``command_publishers`` / ``state_publishers``, so the recording shows it.
+
+Hot path (issue 6): the state, wrench and clock messages are built once and refilled in
+place each tick (numpy views onto their float64[] fields); the time spent building and publishing them is
+reported as ``publish_time_us``.
 """
 
 from __future__ import annotations
@@ -17,21 +41,21 @@ import time
 from dataclasses import replace
 
 import numpy as np
-import rclpy
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension
 
 from cr_control.core import topics
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Param, ParameterError
 from cr_control.nodes.qos import CONTROL_QOS, READY_QOS
-from cr_control.nodes.ros_parameters import ParameterError, declare
-from cr_control.nodes.spin import spin_nodes
+from cr_control.nodes.ros_parameters import declare, police_changes
+from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
 from cr_sim.loop_stats import LoopStats
+from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS
 
 NODE_PARAMETERS = [
@@ -45,11 +69,36 @@ NODE_PARAMETERS = [
           f"({topics.RECORDER_READY}), so a recording misses nothing.", "bool", read_only=True),
     Param("lockstep_resend_s", 1.0, "Lockstep: republish the state if no command came for "
           "this long (wall s).", "positive", read_only=True),
+    Param("watchdog_missed_cycles", 50, "Realtime watchdog: consecutive ticks without a new "
+          "command (the last one is reused meanwhile) before watchdog_reaction, >= 1. 50 = "
+          "50 ms at 1 kHz: above the scheduling stalls of a loaded 2-core machine, short "
+          "enough that the held torque moves the arm < 1 mm (libfranka: 20).", "integer",
+          read_only=True),
+    Param("watchdog_reaction", "safe_stop", "What the watchdog does: safe_stop (brakes: "
+          "gravity held, joints damped to rest and held there, until resume is set), hold "
+          "(keep applying the last command, logged) or disabled (not 'off': YAML reads that as "
+          "false).", "choice", choices=("safe_stop", "hold", "disabled"), read_only=True),
+    Param("brake_damping", 20.0, "Safe stop: joint damping K_d of tau = G(q) - K_d q' - "
+          "K_p (q - q_stop) (N m s/rad).", "positive", read_only=True),
+    Param("brake_stiffness", 500.0, "Safe stop: holding stiffness K_p about the position "
+          "where braking began (N m/rad); 0 = damping only (contact forces then push the arm "
+          "away: ~70 mm on the ch. 3 plane).", "nonnegative", read_only=True),
+    Param("resume", False, "Set to true to leave a safe stop (the plant applies commands "
+          "again and sets this back to false). Never happens by itself.", "bool"),
+    Param("effort_limit", [0.0], "Joint effort limits (N m): one value for every joint or "
+          "one per joint; 0 = the URDF's <limit effort>. Commands beyond are clipped.",
+          "nonnegative_vector", read_only=True),
+    Param("effort_rate_limit", 1000.0, "Torque-rate limit (N m/s) between consecutive "
+          "commands (libfranka: 1000); commands beyond are clipped.", "positive",
+          read_only=True),
 ]
 
 
 SCENARIO_PARAMETER = Param("scenario", "compliant_plane", "Simulated scenario.", "choice",
                            choices=tuple(SCENARIOS), read_only=True)
+
+#: Publish times kept for matching commands to the states they answer.
+_RING = 64
 
 
 def plant_parameters(scenario: str) -> list[Param]:
@@ -58,10 +107,25 @@ def plant_parameters(scenario: str) -> list[Param]:
     return [replace(SCENARIO_PARAMETER, default=scenario), *NODE_PARAMETERS, *specs]
 
 
-def to_time(seconds: float) -> Time:
-    """builtin_interfaces/Time of ``seconds``."""
-    ns = int(round(seconds * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimiter:
+    """The plant's command limits: effort bounds (``effort_limit``, else the URDF's) and
+    the torque-rate limit; position plants: the URDF's position and velocity limits."""
+    limits = plant.joint_limits()
+    n = len(plant.joint_names)
+    if plant.command_interface == "position":
+        return CommandLimiter(limits.lower, limits.upper, limits.velocity, period)
+    given = list(settings["effort_limit"])
+    if len(given) not in (1, n):
+        raise ParameterError(f"effort_limit needs 1 or {n} values, got {len(given)}")
+    effort = []
+    for i, name in enumerate(plant.joint_names):
+        value = given[0] if len(given) == 1 else given[i]
+        urdf = float(limits.effort[i])
+        value = value if value > 0.0 else (urdf if 0.0 < urdf < np.inf else 0.0)
+        if value <= 0.0:
+            raise ParameterError(f"no effort limit for {name}: the URDF gives none, set effort_limit")
+        effort.append(value)
+    return CommandLimiter([-e for e in effort], effort, [settings["effort_rate_limit"]] * n, period)
 
 
 class PlantNode(Node):
@@ -72,18 +136,38 @@ class PlantNode(Node):
         scenario = declare(self, [SCENARIO_PARAMETER])
         specs, factory = SCENARIOS[scenario["scenario"]]
         self.settings = declare(self, NODE_PARAMETERS)
+        if self.settings["watchdog_missed_cycles"] < 1:
+            raise ParameterError("parameter watchdog_missed_cycles must be >= 1")
         self.plant = factory(declare(self, specs))
+        police_changes(self, [SCENARIO_PARAMETER, *NODE_PARAMETERS, *specs], self._on_parameter)
         self.period = 1.0 / self.settings["rate_hz"]
         self.lockstep = self.settings["mode"] == "lockstep"
         self.joint_names = list(self.plant.joint_names)
+        self.plant.brake_damping = self.settings["brake_damping"]
+        self.plant.brake_stiffness = self.settings["brake_stiffness"]
+        self.limiter = command_limiter(self.plant, self.settings, self.period)
         self.finished = Future()
         self.stats = LoopStats()
 
-        self.command = np.zeros(len(self.joint_names))
-        self.command_stamp: tuple[int, int] | None = None
-        self.state_stamp: tuple[int, int] | None = None
-        self._published_at: dict[tuple[int, int], float] = {}
-        self._rejected_commands = 0
+        n = len(self.joint_names)
+        self.command = np.zeros(n)
+        self._command_list: list[float] | None = None   # last applied command, for the rate limit
+        self.command_stamp: int | None = None            # stamps as integer nanoseconds
+        self.state_stamp: int | None = None
+        self._ring_stamps: list[int | None] = [None] * _RING
+        self._ring_times = [0.0] * _RING
+        self._ring_i = 0
+        self._order_cache: tuple[tuple[str, ...], list[int] | None] = ((), None)
+        self._position_interface = self.plant.command_interface == "position"
+        # Watchdog (realtime): armed by the first command.
+        self._watchdog = "disabled" if self.lockstep else self.settings["watchdog_reaction"]
+        self._missed_limit = self.settings["watchdog_missed_cycles"]
+        self._armed = False
+        self._new_command = False
+        self._missed_run = 0
+        self.safe_stop = False
+        self._resume_requested = False
+        self._warned: set[str] = set()
         self._started = False
         self._recorder_ready = not self.settings["wait_for_recorder"]
         self._t0_wall = 0.0
@@ -96,20 +180,51 @@ class PlantNode(Node):
         self.clock_pub = self.create_publisher(Clock, topics.CLOCK, CONTROL_QOS) if self.lockstep else None
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                  topics.PLANT_TIMING_FIELDS)
-        self.command_sub = self.create_subscription(JointState, topics.JOINT_COMMANDS,
-                                                    self._on_command, CONTROL_QOS)
+        # Outgoing messages, built once and refilled in place every tick.
+        self._state_msg = JointState(name=list(self.joint_names))
+        self._q_out = topics.array_field(self._state_msg, "position", n)
+        self._v_out = topics.array_field(self._state_msg, "velocity", n)
+        self._e_out = topics.array_field(self._state_msg, "effort", n)
+        self._wrench_msg = WrenchStamped()
+        self._wrench_msg.header.frame_id = "world"
+        self._clock_msg = Clock()
+
+        self.command_sub = self.create_subscription(
+            JointState, topics.JOINT_COMMANDS, quiet_on_shutdown(self, self._on_command), CONTROL_QOS)
         if self.settings["wait_for_recorder"]:
             self.create_subscription(Bool, topics.RECORDER_READY, self._on_recorder_ready, READY_QOS)
         # Timers are made here and started later: EventsExecutor does not pick up timers
         # created inside callbacks.
+        tick = self._resend_if_stalled if self.lockstep else self._tick
         self._tick_timer = self.create_timer(
             self.settings["lockstep_resend_s"] if self.lockstep else self.period,
-            self._resend_if_stalled if self.lockstep else self._tick, autostart=False)
-        self._timing_timer = self.create_timer(1.0, self._publish_timing, autostart=False)
-        self._start_timer = self.create_timer(0.01, self._try_start)
+            quiet_on_shutdown(self, tick), autostart=False)
+        self._timing_timer = self.create_timer(1.0, quiet_on_shutdown(self, self._publish_timing),
+                                               autostart=False)
+        self._start_timer = self.create_timer(0.01, quiet_on_shutdown(self, self._try_start))
         self.get_logger().info(
             f"scenario {scenario['scenario']}, {self.settings['mode']} at {self.settings['rate_hz']:g} Hz, "
-            f"joints {self.joint_names}; waiting for a controller")
+            f"joints {self.joint_names}, command limits {self.limiter.lower}..{self.limiter.upper}, "
+            f"watchdog {self._watchdog}"
+            + ("" if self._watchdog == "disabled" else f" after {self._missed_limit} missed cycles")
+            + "; waiting for a controller")
+
+    # -- parameters -----------------------------------------------------------------
+    def _on_parameter(self, name: str, value) -> None:
+        if name == "resume" and value:
+            self._resume_requested = True   # acted on (and reset) by the next tick
+
+    def _resume(self) -> None:
+        self._resume_requested = False
+        self.set_parameters([Parameter("resume", value=False)])
+        if not self.safe_stop:
+            self.get_logger().info("resume requested, but no safe stop is engaged")
+            return
+        self.safe_stop = False
+        self.stats.safe_stop = 0.0
+        self._missed_run = 0
+        self._armed = False      # re-armed by the next command; the brake torque is held till then
+        self.get_logger().warn("resumed from safe stop on request: applying commands again")
 
     # -- start and stop -------------------------------------------------------------
     def _on_recorder_ready(self, msg: Bool) -> None:
@@ -129,7 +244,7 @@ class PlantNode(Node):
         self._tick_timer.reset()
         self.get_logger().info("controller connected: starting")
         if self.lockstep:
-            self._publish_state(self._sim_stamp())
+            self._publish_state(*divmod(int(round(self.plant.time * 1e9)), 1_000_000_000))
 
     def _finish(self) -> None:
         if self.finished.done():
@@ -137,7 +252,8 @@ class PlantNode(Node):
         self._publish_timing()
         self.get_logger().info(
             f"done: {self.plant.time:.3f} s simulated in {time.monotonic() - self._t0_wall:.3f} s wall, "
-            f"{self.stats.total_cycles} cycles, {self._rejected_commands} commands refused")
+            f"{self.stats.total_cycles} cycles, {self.stats.commands_refused} commands refused, "
+            f"{self.stats.commands_clipped} clipped" + (", in safe stop" if self.safe_stop else ""))
         self.finished.set_result(True)
 
     def _out_of_time(self) -> bool:
@@ -145,58 +261,83 @@ class PlantNode(Node):
         return duration > 0.0 and self.plant.time >= duration - 0.5 * self.period
 
     # -- state out ------------------------------------------------------------------
-    def _sim_stamp(self) -> Time:
-        return to_time(self.plant.time)
-
-    def _publish_state(self, stamp: Time) -> None:
+    def _publish_state(self, sec: int, nanosec: int) -> None:
+        """Publish clock (lockstep), wrench and joint state stamped ``sec.nanosec``."""
+        start = time.perf_counter()
         m = self.plant.measurement()
-        wrench = WrenchStamped()
-        wrench.header.stamp = stamp
-        wrench.header.frame_id = "world"
-        wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z = m.force.tolist()
-        state = JointState()
-        state.header.stamp = stamp
-        state.name = self.joint_names
-        state.position = m.position.tolist()
-        state.velocity = m.velocity.tolist()
-        state.effort = m.effort.tolist()
+        state, wrench = self._state_msg, self._wrench_msg
+        self._q_out[:] = m.position
+        self._v_out[:] = m.velocity
+        self._e_out[:] = m.effort
+        for stamp in (state.header.stamp, wrench.header.stamp):
+            stamp.sec, stamp.nanosec = sec, nanosec
+        force = wrench.wrench.force
+        force.x, force.y, force.z = m.force.tolist()
         if self.clock_pub is not None:
-            self.clock_pub.publish(Clock(clock=stamp))
+            clock = self._clock_msg.clock
+            clock.sec, clock.nanosec = sec, nanosec
+            self.clock_pub.publish(self._clock_msg)
         self.wrench_pub.publish(wrench)
         self.state_pub.publish(state)
-        key = (stamp.sec, stamp.nanosec)
         now = time.monotonic()
+        key = sec * 1_000_000_000 + nanosec
         self.state_stamp = key
         self._last_publish_wall = now
-        self._published_at[key] = now
-        if len(self._published_at) > 64:
-            self._published_at.pop(next(iter(self._published_at)))
+        i = self._ring_i = (self._ring_i + 1) % _RING
+        self._ring_stamps[i], self._ring_times[i] = key, now
+        self.stats.published(time.perf_counter() - start)
+
+    def _published_at(self, key: int) -> float | None:
+        """Wall time the state stamped ``key`` was published (None if not among the last)."""
+        stamps, i = self._ring_stamps, self._ring_i
+        for k in range(_RING):
+            j = (i - k) % _RING
+            if stamps[j] == key:
+                stamps[j] = None      # one round trip per state
+                return self._ring_times[j]
+        return None
 
     # -- commands in ----------------------------------------------------------------
-    def _command_values(self, msg: JointState) -> np.ndarray | None:
-        values = msg.position if self.plant.command_interface == "position" else msg.effort
-        if list(msg.name) == self.joint_names and len(values) == len(self.joint_names):
-            command = np.asarray(values, dtype=float)
-        else:
-            try:
-                command = np.array([values[list(msg.name).index(n)] for n in self.joint_names])
-            except (ValueError, IndexError):
-                return None
-        return command if self.plant.accept(command) else None
+    def _reorder(self, names: list[str], values) -> list[float] | None:
+        """``values`` in our joint order if ``names`` are exactly our joints, else None."""
+        key = tuple(names)
+        if key != self._order_cache[0]:
+            ok = len(names) == len(self.joint_names) and set(names) == set(self.joint_names)
+            self._order_cache = (key, [names.index(n) for n in self.joint_names] if ok else None)
+        order = self._order_cache[1]
+        if order is None or len(values) != len(names):
+            return None
+        return [values[i] for i in order]
+
+    def _refuse(self, why: str) -> None:
+        self.stats.commands_refused += 1
+        self.get_logger().warn(f"refused a command ({why}); {self.stats.commands_refused} so far; "
+                               "holding the last good one", throttle_duration_sec=5.0)
 
     def _on_command(self, msg: JointState) -> None:
-        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        command = self._command_values(msg)
-        if command is None:
-            self._rejected_commands += 1
-            if self._rejected_commands in (1, 10, 100, 1000):
-                self.get_logger().warn(f"refused {self._rejected_commands} commands (wrong names, "
-                                       f"sizes or non-finite values); holding the last good one")
+        values = msg.position if self._position_interface else msg.effort
+        if msg.name != self.joint_names or len(values) != len(self.joint_names):
+            values = self._reorder(msg.name, values)
+            if values is None:
+                self._refuse(f"it names {list(msg.name)} with {len(msg.effort)} efforts and "
+                             f"{len(msg.position)} positions; the plant's joints are {self.joint_names}")
+                return
+        limited = self.limiter.limit(values, self._command_list)
+        if limited is None:
+            self._refuse("non-finite value")
             return
-        sent = self._published_at.pop(key, None)
+        self.stats.commands_clipped = self.limiter.clipped
+        stamp = msg.header.stamp
+        key = stamp.sec * 1_000_000_000 + stamp.nanosec
+        sent = self._published_at(key)
         if sent is not None:
             self.stats.round_trip(time.monotonic() - sent)
-        self.command, self.command_stamp = command, key
+        self.command_stamp = key
+        self._new_command = True
+        if self.safe_stop:
+            return                          # braking until resumed
+        self._command_list = limited
+        self.command = np.array(limited)
         if self.lockstep and self._started and key == self.state_stamp and not self.finished.done():
             self._lockstep_step()
 
@@ -208,15 +349,44 @@ class PlantNode(Node):
         if self._out_of_time():
             self._finish()
             return
-        self._publish_state(self._sim_stamp())
+        self._publish_state(*divmod(int(round(self.plant.time * 1e9)), 1_000_000_000))
 
     def _resend_if_stalled(self) -> None:
         if self.finished.done() or self.state_stamp is None:
             return
+        if self._resume_requested:
+            self._resume()
         if time.monotonic() - self._last_publish_wall > self.settings["lockstep_resend_s"]:
             self.get_logger().warn("no command for the last state: publishing it again")
-            stamp = Time(sec=self.state_stamp[0], nanosec=self.state_stamp[1])
-            self._publish_state(stamp)
+            self._publish_state(*divmod(self.state_stamp, 1_000_000_000))
+
+    def _watch(self) -> None:
+        """Count ticks without a new command; react after watchdog_missed_cycles in a row."""
+        if self._new_command:
+            self._new_command = False
+            self._armed = True
+            self._missed_run = 0
+            return
+        if not self._armed:
+            return
+        run = self._missed_run = self._missed_run + 1
+        if run > self.stats.window_max_missed_run:
+            self.stats.window_max_missed_run = run
+        if run != self._missed_limit or self._watchdog == "disabled":
+            return
+        reason = (f"no new command for {run} consecutive cycles "
+                  f"({run * self.period * 1e3:.0f} ms; watchdog_missed_cycles {self._missed_limit})")
+        if self._watchdog == "hold":
+            self.get_logger().warn(f"watchdog: {reason}: holding the last command "
+                                   "(watchdog_reaction hold)", throttle_duration_sec=5.0)
+            return
+        self.safe_stop = True
+        self.stats.safe_stop = 1.0
+        self.plant.begin_safe_stop()
+        self.get_logger().error(
+            f"SAFE STOP: {reason}: braking (gravity held, damping {self.plant.brake_damping:g} "
+            f"N m s/rad, holding stiffness {self.plant.brake_stiffness:g} N m/rad). Commands are "
+            "ignored until the parameter resume is set to true.")
 
     def _tick(self) -> None:
         if self.finished.done():
@@ -224,7 +394,14 @@ class PlantNode(Node):
         now = time.monotonic()
         elapsed, self._last_tick = now - self._last_tick, now
         fresh = self.command_stamp is not None and self.command_stamp == self.state_stamp
+        if self._resume_requested:
+            self._resume()
+        self._watch()
         start = time.perf_counter()
+        if self.safe_stop:
+            brake = self.limiter.bound(self.plant.safe_stop_command())
+            self._command_list = brake
+            self.command = np.array(brake)
         substeps = max(1, round(elapsed / self.period))  # steps of at most ~1.5 periods
         for _ in range(substeps):
             self.plant.step(self.command, elapsed / substeps)
@@ -232,13 +409,28 @@ class PlantNode(Node):
         if self._out_of_time():
             self._finish()
             return
-        self._publish_state(self.get_clock().now().to_msg())
+        self._publish_state(*divmod(time.time_ns(), 1_000_000_000))
+
+    def _check_publishers(self) -> None:
+        """Warn once if anyone but the controller commands, or anyone but us publishes states."""
+        commands = self.count_publishers(self.command_sub.topic_name)
+        states = self.count_publishers(self.state_pub.topic_name)
+        self.stats.command_publishers, self.stats.state_publishers = commands, states
+        for topic, count, allowed in ((self.command_sub.topic_name, commands, 1),
+                                      (self.state_pub.topic_name, states, 1)):
+            if count > allowed and topic not in self._warned:
+                self._warned.add(topic)
+                self.get_logger().warn(
+                    f"{count} publishers on {topic} (expected {allowed}): another session on "
+                    "this ROS_DOMAIN_ID or a rogue node is on the control loop; counted in "
+                    f"{topics.PLANT_TIMING}")
 
     def _publish_timing(self) -> None:
         if not self._started:
             return
+        self._check_publishers()
         now = time.monotonic()
-        stamp = self.state_stamp[0] + self.state_stamp[1] * 1e-9 if self.state_stamp else 0.0
+        stamp = self.state_stamp * 1e-9 if self.state_stamp is not None else 0.0
         self._timing_msg.data = [stamp, *self.stats.report(now)]
         self.timing_pub.publish(self._timing_msg)
         d = dict(zip(topics.PLANT_TIMING_FIELDS, self._timing_msg.data, strict=True))
@@ -246,19 +438,16 @@ class PlantNode(Node):
             f"t={self.plant.time:.1f} s rate={d['rate_hz']:.0f} Hz "
             f"fresh={100 * d['window_fresh_share']:.2f}% "
             f"round trip p50/p99/max={d['window_age_p50_ms']:.3f}/{d['window_age_p99_ms']:.3f}/"
-            f"{d['window_age_max_ms']:.3f} ms step={d['step_time_us']:.0f} us")
+            f"{d['window_age_max_ms']:.3f} ms step={d['step_time_us']:.0f} us "
+            f"publish={d['publish_time_us']:.0f} us" + (" SAFE STOP" if self.safe_stop else ""))
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the plant node."""
-    rclpy.init(args=sys.argv if args is None else args)
-    try:
-        node = PlantNode()
-    except ParameterError as exc:
-        print(f"plant: refused to start: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
+    """Run the plant node (exit 1 with one line on stderr if it refuses to start)."""
+    nodes = start_nodes("plant", list(sys.argv if args is None else args), lambda: [PlantNode()])
+    if nodes is None:
         return 1
-    spin_nodes([node], until=node.finished)
+    spin_nodes(nodes, until=nodes[0].finished)
     return 0
 
 

@@ -1,5 +1,6 @@
 """The controller node over ROS: parameter services and bad input (separate process)."""
 
+import itertools
 import math
 import signal
 import subprocess
@@ -55,12 +56,16 @@ def get_param(probe, name):
     return probe.call(GetParameters, f"/{NODE}/get_parameters", req).values[0]
 
 
-def send_state(controller, sec, position, velocity, names=("joint1", "joint2")):
+_period_ns = itertools.count(1_000_000_000, 1_000_000)
+
+
+def send_state(controller, position, velocity, names=("joint1", "joint2")):
+    """Publish a joint state 1 ms after the previous one (a longer gap would be held)."""
     probe, proc, pub, commands, status = controller
     assert probe.spin_until(lambda: pub.get_subscription_count() > 0), "controller not subscribed"
     n = len(commands)
     msg = JointState(name=list(names), position=list(position), velocity=list(velocity))
-    msg.header.stamp.sec = sec
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(next(_period_ns), 1_000_000_000)
     pub.publish(msg)
     assert probe.spin_until(lambda: len(commands) > n and len(status) > n), "no command came back"
     return commands[-1], status[-1]
@@ -103,11 +108,11 @@ def test_invalid_change_is_refused_and_old_value_stays(controller, name, value, 
 
 def test_change_takes_effect_on_the_next_cycle(controller):
     probe = controller[0]
-    cmd, _ = send_state(controller, 1, Q0, [0.0, 0.0])
+    cmd, _ = send_state(controller, Q0, [0.0, 0.0])
     assert max(abs(x) for x in cmd.effort) > 0.3
     assert set_param(probe, "max_effort",
                      ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.3)).successful
-    cmd, _ = send_state(controller, 2, Q0, [0.0, 0.0])
+    cmd, _ = send_state(controller, Q0, [0.0, 0.0])
     assert max(abs(x) for x in cmd.effort) == pytest.approx(0.3)
     set_param(probe, "max_effort", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=100.0))
 
@@ -119,8 +124,8 @@ def test_change_takes_effect_on_the_next_cycle(controller):
     ([0.0, 0.0], [0.0, 0.0], ("joint1", "elbow")),
 ])
 def test_bad_joint_states_never_give_a_non_finite_command(controller, position, velocity, names):
-    good, _ = send_state(controller, 10, Q0, [0.0, 0.0])
-    cmd, status = send_state(controller, 11, position, velocity, names)
+    good, _ = send_state(controller, Q0, [0.0, 0.0])
+    cmd, status = send_state(controller, position, velocity, names)
     assert np.isfinite(cmd.effort).all() and list(cmd.effort) == list(good.effort)
     assert status_value(status, "held") == 1.0
     assert np.isfinite(status.data).all()

@@ -9,7 +9,10 @@ belong to. Any MCAP reader can recover named columns with :func:`fields_of`.
 
 from __future__ import annotations
 
+import array
 from collections.abc import Sequence
+
+import numpy as np
 
 JOINT_STATES = "/joint_states"
 WRENCH = "/force_torque_sensor_broadcaster/wrench"
@@ -59,11 +62,25 @@ def labelled_array(msg_cls, dim_cls, fields: Sequence[str]):
     return msg
 
 
+def array_field(msg, field: str, n: int) -> np.ndarray:
+    """Give ``msg.field`` (a float64[] field) ``n`` zeros and return a numpy view that writes
+    into the message's own array: a message built once is refilled in place each cycle
+    (rclpy's setter stores a copy of what it is given, so view what it stored)."""
+    setattr(msg, field, array.array("d", bytes(8 * n)))
+    return np.frombuffer(getattr(msg, field), dtype=np.float64)
+
+
 #: Fields of the plant's per-second timing message (PLANT_TIMING). ``window_*`` cover
 #: the last second; ``total_*`` the whole run so far. Ages are state-to-command round
 #: trips measured in the plant: from publishing a state to receiving the command
 #: computed from it. A cycle is "fresh" when the command applied at that tick was
-#: computed from the state published at the previous tick.
+#: computed from the state published at the previous tick. Appended later (issues 6, 7):
+#: ``publish_time_us`` (window mean time building and publishing state, wrench, clock),
+#: ``safe_stop`` (1 while the watchdog's safe stop is engaged), ``commands_clipped`` and
+#: ``commands_refused`` (run totals), ``command_publishers`` / ``state_publishers``
+#: (publishers seen on /joint_commands and /joint_states, the plant included; more than
+#: one each means another participant is on the loop), ``window_max_missed_run`` (longest
+#: run of consecutive ticks without a new command in the window).
 PLANT_TIMING_FIELDS = [
     "stamp",
     "rate_hz",
@@ -79,6 +96,13 @@ PLANT_TIMING_FIELDS = [
     "total_age_p99_ms",
     "total_age_max_ms",
     "step_time_us",
+    "publish_time_us",
+    "safe_stop",
+    "commands_clipped",
+    "commands_refused",
+    "command_publishers",
+    "state_publishers",
+    "window_max_missed_run",
 ]
 
 #: Fields every controller publishes on its reference topic (task space, SI units).
@@ -97,3 +121,9 @@ STATUS_FIELDS = [
     "compute_time_us",
     "held",
 ]
+
+#: Fields the controller node appends after every controller's status fields (its own
+#: timing, not the control law's): ``in_time_us`` from callback entry to the start of
+#: the control computation, ``out_time_us`` building and publishing the previous
+#: cycle's command, reference and status. Not in the offline loop (no messages there).
+NODE_STATUS_FIELDS = ["in_time_us", "out_time_us"]

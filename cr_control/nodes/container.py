@@ -11,28 +11,25 @@ from __future__ import annotations
 
 import sys
 
-import rclpy
+import numpy as np
 
 from cr_control.nodes.controller_node import ControllerNode
-from cr_control.nodes.ros_parameters import ParameterError
-from cr_control.nodes.spin import spin_nodes
+from cr_control.nodes.spin import spin_nodes, start_nodes
 from cr_control.schemes.registry import SCHEMES
 from cr_sim.plant_node import PlantNode
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the plant and the controller of the scheme named first on the command line."""
+    """Run the plant and the controller of the scheme named first on the command line
+    (exit 2 for an unknown scheme, 1 with one line on stderr if a node refuses to start)."""
     argv = list(sys.argv if args is None else args)
     if len(argv) < 2 or argv[1] not in SCHEMES:
         print(f"usage: container SCHEME [--ros-args ...]; schemes: {sorted(SCHEMES)}", file=sys.stderr)
         return 2
     scheme = argv.pop(1)
-    rclpy.init(args=argv)
-    try:
-        nodes = [ControllerNode(scheme), PlantNode()]
-    except ParameterError as exc:
-        print(f"container: refused to start: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
+    np.seterr(all="ignore")     # Controller.step catches and logs non-finite results
+    nodes = start_nodes("container", argv, lambda: [ControllerNode(scheme), PlantNode()])
+    if nodes is None:
         return 1
     spin_nodes(nodes, until=nodes[1].finished)
     return 0
