@@ -11,6 +11,8 @@ SCHEMES = [
     "adaptive_impedance",
     "robust_adaptive_impedance",
     "nn_adaptive_impedance",
+    "impedance",
+    "fuzzy_unidirectional",
 ]
 
 setup(

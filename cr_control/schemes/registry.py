@@ -7,6 +7,8 @@ from typing import Any
 from cr_control.core.parameters import resolve
 from cr_control.schemes.adaptive_impedance import AdaptiveImpedanceController
 from cr_control.schemes.controller import Controller
+from cr_control.schemes.fuzzy_unidirectional import FuzzyUnidirectionalController
+from cr_control.schemes.impedance import ImpedanceController
 from cr_control.schemes.nn_adaptive_impedance import NNAdaptiveImpedanceController
 from cr_control.schemes.robust_adaptive_impedance import RobustAdaptiveImpedanceController
 
@@ -15,6 +17,8 @@ SCHEMES: dict[str, tuple[type[Controller], str]] = {
     "adaptive_impedance": (AdaptiveImpedanceController, "compliant_plane"),
     "robust_adaptive_impedance": (RobustAdaptiveImpedanceController, "compliant_plane"),
     "nn_adaptive_impedance": (NNAdaptiveImpedanceController, "compliant_plane"),
+    "impedance": (ImpedanceController, "circular_surface"),
+    "fuzzy_unidirectional": (FuzzyUnidirectionalController, "circular_surface"),
 }
 
 

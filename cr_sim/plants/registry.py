@@ -6,12 +6,14 @@ from collections.abc import Callable
 from typing import Any
 
 from cr_control.core.parameters import Param, resolve
+from cr_sim.plants import circular_surface
 from cr_sim.plants import compliant_plane as compliant_plane_arm
 from cr_sim.plants.base import Plant
 
 #: scenario name -> (parameters, factory taking the converted parameter values)
 SCENARIOS: dict[str, tuple[list[Param], Callable[[dict], Plant]]] = {
     compliant_plane_arm.NAME: (compliant_plane_arm.PARAMETERS, compliant_plane_arm.CompliantPlaneArm),
+    circular_surface.NAME: (circular_surface.PARAMETERS, circular_surface.CircularSurfaceArm),
 }
 
 
