@@ -13,6 +13,8 @@ SCHEMES = [
     "nn_adaptive_impedance",
     "impedance",
     "fuzzy_unidirectional",
+    "moving_object_adaptive",
+    "moving_object_nn",
 ]
 
 setup(

@@ -9,6 +9,8 @@ from cr_control.schemes.adaptive_impedance import AdaptiveImpedanceController
 from cr_control.schemes.controller import Controller
 from cr_control.schemes.fuzzy_unidirectional import FuzzyUnidirectionalController
 from cr_control.schemes.impedance import ImpedanceController
+from cr_control.schemes.moving_object_adaptive import MovingObjectAdaptiveController
+from cr_control.schemes.moving_object_nn import MovingObjectNNController
 from cr_control.schemes.nn_adaptive_impedance import NNAdaptiveImpedanceController
 from cr_control.schemes.robust_adaptive_impedance import RobustAdaptiveImpedanceController
 
@@ -19,6 +21,8 @@ SCHEMES: dict[str, tuple[type[Controller], str]] = {
     "nn_adaptive_impedance": (NNAdaptiveImpedanceController, "compliant_plane"),
     "impedance": (ImpedanceController, "circular_surface"),
     "fuzzy_unidirectional": (FuzzyUnidirectionalController, "circular_surface"),
+    "moving_object_adaptive": (MovingObjectAdaptiveController, "moving_object"),
+    "moving_object_nn": (MovingObjectNNController, "moving_object"),
 }
 
 
