@@ -375,3 +375,10 @@ def test_lockstep_over_ros_matches_offline(scheme, fields, tmp_path):
     assert len(k) >= 1990, f"{2000 - len(k)} status messages not recorded"
     for field in fields:
         assert np.abs(s.status[field] - reference.column(field)[k]).max() < 1e-6, field
+
+
+def test_shipped_plant_config_is_the_defaults():
+    from cr_control.core.paths import config_file
+    from cr_control.tools.config_files import plant_yaml
+
+    assert config_file("plant_moving_object.yaml").read_text() == plant_yaml("moving_object")
