@@ -69,18 +69,18 @@ NODE_PARAMETERS = [
           f"({topics.RECORDER_READY}), so a recording misses nothing.", "bool", read_only=True),
     Param("lockstep_resend_s", 1.0, "Lockstep: republish the state if no command came for "
           "this long (wall s).", "positive", read_only=True),
-    Param("watchdog_missed_cycles", 50, "Realtime watchdog: consecutive ticks without a new "
-          "command (the last one is reused meanwhile) before watchdog_reaction, >= 1. 50 = "
-          "50 ms at 1 kHz: above the scheduling stalls of a loaded 2-core machine, short "
-          "enough that the held torque moves the arm < 1 mm (libfranka: 20).", "integer",
-          read_only=True),
+    Param("watchdog_missed_cycles", 100, "Realtime watchdog: consecutive ticks without a new "
+          "command (the last one is reused meanwhile) before watchdog_reaction, >= 1. 100 = "
+          "0.1 s at 1 kHz (libfranka: 20 on a real-time kernel): controller stalls of 20-60 ms "
+          "were seen on a loaded 2-core machine, and a false stop needs a manual resume.",
+          "integer", read_only=True),
     Param("watchdog_reaction", "safe_stop", "What the watchdog does: safe_stop (brakes: "
           "gravity held, joints damped to rest and held there, until resume is set), hold "
           "(keep applying the last command, logged) or disabled (not 'off': YAML reads that as "
           "false).", "choice", choices=("safe_stop", "hold", "disabled"), read_only=True),
-    Param("brake_damping", 20.0, "Safe stop: joint damping K_d of tau = G(q) - K_d q' - "
+    Param("brake_damping", 30.0, "Safe stop: joint damping K_d of tau = G(q) - K_d q' - "
           "K_p (q - q_stop) (N m s/rad).", "positive", read_only=True),
-    Param("brake_stiffness", 500.0, "Safe stop: holding stiffness K_p about the position "
+    Param("brake_stiffness", 1000.0, "Safe stop: holding stiffness K_p about the position "
           "where braking began (N m/rad); 0 = damping only (contact forces then push the arm "
           "away: ~70 mm on the ch. 3 plane).", "nonnegative", read_only=True),
     Param("resume", False, "Set to true to leave a safe stop (the plant applies commands "

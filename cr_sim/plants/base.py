@@ -56,9 +56,9 @@ class Plant(ABC):
     #: "effort" (torque-commanded) or "position" (command-displacement plants, ch. 4).
     command_interface: str = "effort"
     #: Safe stop (brakes): viscous damping K_d (N m s/rad) of tau = G(q) - K_d q' - K_p (q - q_stop).
-    brake_damping: float = 20.0
+    brake_damping: float = 30.0
     #: Safe stop: holding stiffness K_p (N m/rad) about the position where braking began.
-    brake_stiffness: float = 500.0
+    brake_stiffness: float = 1000.0
 
     _brake_hold: np.ndarray | None = None
 
