@@ -258,3 +258,12 @@ def test_mcap_log_times_from_message_indexes(tmp_path):
         writer.write(a if i % 2 else b, data, 5_000 + 3 * i)
     writer.close()
     assert bm.mcap_log_times(path) == [5_000 + 3 * i for i in range(300)]
+
+
+def test_recorder_missed_from_its_exit_line():
+    clean = "[INFO] ready\nrecorder: wrote 5266 messages to /tmp/x/session.mcap\n"
+    lossy = ("recorder: wrote 53061 messages to /tmp/s.mcap; 6947 missed (gaps in the publishers' "
+             "sequence numbers: /joint_states 1160, /clock 1155)\n")
+    assert bm.parse_recorder_missed(clean) == 0
+    assert bm.parse_recorder_missed(lossy) == 6947
+    assert bm.parse_recorder_missed("Traceback ...") is None

@@ -104,7 +104,7 @@ class SyntheticSession:
 
 def run_session(tmp_path: Path, ros_env: dict[str, str], sig: int, n: int,
                 extra_topics: tuple[str, ...] = (), ready_timeout: float = 20.0,
-                pause: float = 0.001, compression: str = "zstd",
+                pause: float = 0.001, compression: str = "zstd", parameter_nodes: tuple[str, ...] = (),
                 ) -> tuple[Path, dict[str, list], str]:
     """Record a synthetic session, end the recorder with ``sig``; (file, sent, stderr)."""
     output = tmp_path / "session.mcap"
@@ -117,9 +117,14 @@ def run_session(tmp_path: Path, ros_env: dict[str, str], sig: int, n: int,
             [sys.executable, "-m", "cr_control.recording.recorder", "--ros-args",
              "-p", f"output:={output}",
              "-p", f"topics:=[{', '.join(RECORDED + list(extra_topics))}]",
-             "-p", f"ready_timeout:={ready_timeout}", "-p", f"compression:={compression}"],
+             "-p", f"ready_timeout:={ready_timeout}", "-p", f"compression:={compression}"]
+            + (["-p", f"parameter_nodes:=[{', '.join(parameter_nodes)}]"] if parameter_nodes else []),
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         session.spin_until(lambda: session.ready, "the recorder's ready message", proc)
+        # Ready after a (short) ready timeout need not mean connected on a loaded machine.
+        pubs = (session.joint_pub, session.wrench_pub, session.status_pub)
+        session.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs),
+                           "the recorder's subscriptions", proc)
         sent = session.publish(n, pause)
         proc.send_signal(sig)
         # Keep spinning while the recorder drains (nothing more is published).
@@ -243,8 +248,10 @@ def test_sigterm_leaves_complete_rosbag2_style_file(tmp_path, ros_env):
 
 def test_sigint_and_missing_topic_still_complete(tmp_path, ros_env):
     n = 50
+    # Named parameter nodes: after a 1 s ready timeout the graph may not show the node yet.
     path, sent, stderr = run_session(tmp_path, ros_env, signal.SIGINT, n,
-                                     extra_topics=("/never_published",), ready_timeout=1.0)
+                                     extra_topics=("/never_published",), ready_timeout=1.0,
+                                     parameter_nodes=("synthetic_plant",))
     assert "/never_published" in stderr  # the ready timeout names the missing topic
     content = check_complete_file(path, sent, n)
     assert "/never_published" not in {c.topic for c in content["summary"].channels.values()}

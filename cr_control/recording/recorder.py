@@ -31,6 +31,11 @@ YAML-encoded), then publishes ``std_msgs/Bool(True)`` on ``topics.RECORDER_READY
 its initial parameters are all in the file. Live changes are in the recorded
 ``/parameter_events``. Topics that appear later are recorded from then on.
 
+Nothing lost is checked, not assumed: on a topic with one publisher, a gap in the
+publisher's sequence numbers means messages that never reached the recorder (the
+middleware dropped them, e.g. a reliable writer's KEEP_LAST history overtaking a reader
+starved of CPU); the exit line reports them per topic ("N missed").
+
 SIGINT or SIGTERM ends the session: the recorder keeps taking messages until the
 topics fall quiet (at most ``DRAIN_MAX_S``), writes all of them, then the summary and
 footer, and exits with status 0.
@@ -412,6 +417,10 @@ class McapBagWriter:
                                           has_header)
         return channel_id
 
+    def topic_name(self, channel_id: int) -> str:
+        """The topic of a channel."""
+        return self._topics[channel_id].name
+
     def has_header(self, channel_id: int) -> bool:
         """The channel's type starts with a ``std_msgs/Header``."""
         return self._topics[channel_id].has_header
@@ -700,6 +709,9 @@ class Recorder(Node):
         self._reader = Node("_recorder_reader", context=self.context, use_global_arguments=False,
                             start_parameter_services=False, enable_rosout=False)
         self._takers: list[tuple[Any, type, int]] = []
+        #: Per taker: last publication sequence number seen, messages missed (gaps).
+        self._last_sequence: list[int] = []
+        self.missed: dict[str, int] = {}
         self._pending: list[tuple[int, int, bytes]] = []
         self._recorded: dict[str, Any] = {}
         self._ready = False
@@ -764,6 +776,7 @@ class Recorder(Node):
             msg_class, name, _never_called, request_qos(offered), raw=True)
         self._recorded[name] = subscription
         self._takers.append((subscription, msg_class, channel))
+        self._last_sequence.append(0)
         if self._ready:
             self.get_logger().info(f"now recording {name}")
 
@@ -779,13 +792,26 @@ class Recorder(Node):
         batch = self._pending
         append = batch.append
         taken_count = len(batch)
-        for subscription, msg_class, channel in self._takers:
+        for i, (subscription, msg_class, channel) in enumerate(self._takers):
             handle = subscription.handle
             take = handle.take_message
+            # Sequence numbers count per publisher: gaps mean something only with one.
+            last = self._last_sequence[i] if subscription.get_publisher_count() == 1 else -1
+            missed = 0
             with handle:
                 while (taken := take(msg_class, True)) is not None:
+                    info = taken[1]
                     # 0 from a middleware without receive times: this call's time.
-                    append((taken[1]["received_timestamp"] or cut, channel, taken[0]))
+                    append((info["received_timestamp"] or cut, channel, taken[0]))
+                    if last >= 0:
+                        sequence = info["publication_sequence_number"] or 0
+                        if sequence > last + 1 and last:
+                            missed += sequence - last - 1
+                        last = sequence
+            self._last_sequence[i] = max(last, 0)
+            if missed:
+                name = self.writer.topic_name(channel)
+                self.missed[name] = self.missed.get(name, 0) + missed
         taken_count = len(batch) - taken_count
         if not batch:
             return 0
@@ -916,7 +942,10 @@ def main(args: Iterable[str] | None = None) -> int:
         executor.shutdown(timeout_sec=1.0)
         recorder.destroy_node()
         rclpy.try_shutdown()
-    print(f"recorder: wrote {count} messages to {path}", file=sys.stderr)
+    missed = sum(recorder.missed.values())
+    detail = (f"; {missed} missed (gaps in the publishers' sequence numbers: "
+              f"{', '.join(f'{t} {n}' for t, n in recorder.missed.items())})" if missed else "")
+    print(f"recorder: wrote {count} messages to {path}{detail}", file=sys.stderr)
     return 0
 
 

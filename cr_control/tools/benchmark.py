@@ -78,6 +78,7 @@ STATUS_TIME_FIELDS = ("in_time_us", "compute_time_us", "out_time_us")
 
 DONE_RE = re.compile(r"done: ([\d.eE+-]+) s simulated in ([\d.eE+-]+) s wall, (\d+) cycles")
 PUBLISHED_RE = re.compile(r"published: (\d+) messages")
+RECORDER_RE = re.compile(r"recorder: wrote (\d+) messages to .*?(?:; (\d+) missed|$)", re.MULTILINE)
 
 
 # -- pure helpers (tested without ROS) ------------------------------------------------
@@ -189,6 +190,15 @@ def parse_published(text: str) -> int | None:
     """Messages the synthetic load published, from its "published:" log line, or None."""
     matches = PUBLISHED_RE.findall(text)
     return int(matches[-1]) if matches else None
+
+
+def parse_recorder_missed(text: str) -> int | None:
+    """Messages the recorder saw the middleware drop (its exit line: "N missed"), 0 if it
+    reported none, None if it did not exit cleanly."""
+    matches = RECORDER_RE.findall(text)
+    if not matches:
+        return None
+    return int(matches[-1][1] or 0)
 
 
 def timing_dict(label: str, data: Sequence[float]) -> dict[str, float]:
@@ -410,6 +420,7 @@ REALTIME_ROWS = [
     ("controller out p50 (us)", "out_p50_us", ".1f", ""),
     ("recorder messages/s", "recorder_msgs_per_s", ".0f", ""),
     ("recorder CPU/message (us)", "recorder_us_per_msg", ".1f", ""),
+    ("recorder messages missed", "recorder_missed", ".0f", ""),
     ("vs baseline: fresh (pp)", "fresh_diff_pp", "+.2f", ""),
     ("vs baseline: round trip p99", "p99_ratio", ".2f", "x"),
     ("vs baseline: CPU total", "cpu_ratio", ".2f", "x"),
@@ -452,7 +463,7 @@ def format_speed_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
 def format_recorder_load(rows: Sequence[tuple[str, dict[str, Any]]], loop_ns: float | None) -> str:
     """The recorder under synthetic load ((title, figures)) as a text table."""
     head = ["", "messages/s", "CPU (% core)", "us/message", "us/msg scaled", "published", "recorded",
-            "lost"]
+            "lost", "missed (own)"]
     title_w = max([len("recorder, synthetic load"), *(len(t) for t, _ in rows)])
     out = [head[0].ljust(title_w) + "".join(h.rjust(14) for h in head[1:])]
     for title, fig in rows:
@@ -461,7 +472,8 @@ def format_recorder_load(rows: Sequence[tuple[str, dict[str, Any]]], loop_ns: fl
             continue
         cells = [fmt(fig.get("msgs_per_s"), ".0f"), fmt(fig.get("cpu_pct"), ".1f"),
                  fmt(fig.get("us_per_msg"), ".2f"), fmt(scaled_cost(fig.get("us_per_msg"), loop_ns), ".1f"),
-                 fmt(fig.get("published"), "d"), fmt(fig.get("recorded"), "d"), fmt(fig.get("lost"), "d")]
+                 fmt(fig.get("published"), "d"), fmt(fig.get("recorded"), "d"), fmt(fig.get("lost"), "d"),
+                 fmt(fig.get("missed"), "d")]
         out.append(title.ljust(title_w) + "".join(c.rjust(14) for c in cells))
     return "\n".join(out)
 
@@ -798,6 +810,7 @@ def run_session(title: str, domain: int, out: Path, duration: float, mode: str, 
     if record:
         roles["recorder"] = "recorder"
         fig["mcap"] = str(session.mcap)
+        fig["recorder_missed"] = _recorder_missed(session.logs / "recorder.log")
     fig.update(_steady_figures(listener, roles, session.mcap if record else None))
     fig.update(_time_breakdown(listener, controller=compute_time and mode == "realtime"))
     if listener is not None:
@@ -870,6 +883,7 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
     roles = {} if composed else {"state": "source", "command": "echo"}
     if record:
         roles["recorder"] = "recorder"
+        fig["recorder_missed"] = _recorder_missed(logs / "recorder.log")
     fig.update(_steady_figures(listener, roles, mcap if record else None))
     publish = window_mean([t for _, t in listener.timing], "publish_time_us")
     if _finite(publish):  # the source's own publish time: the floor under the plant's
@@ -921,7 +935,8 @@ def run_recorder_load(title: str, domain: int, out: Path, duration: float, progr
         fig["error"] = f"cannot read {mcap}: {exc}"
         return fig
     fig.update(published=published, recorded=recorded,
-               lost=published - recorded if published is not None else None)
+               lost=published - recorded if published is not None else None,
+               missed=_recorder_missed(logs / "recorder.log"))
     if len(log_times) < 2:
         fig["error"] = f"{len(log_times)} messages recorded"
         return fig
@@ -935,6 +950,13 @@ def run_recorder_load(title: str, domain: int, out: Path, duration: float, progr
     progress(f"{fig['msgs_per_s']:.0f} messages/s, {fig['us_per_msg']:.2f} us CPU per message, "
              f"{fig['lost']} lost")
     return fig
+
+
+def _recorder_missed(log: Path) -> int | None:
+    try:
+        return parse_recorder_missed(log.read_text(errors="replace"))
+    except OSError:
+        return None
 
 
 def _recorded_except(path: Path, skip: str) -> int:
