@@ -42,6 +42,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
+from cr_control.analysis import chapter5
 from cr_control.core import ros_yaml, topics
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -745,6 +746,7 @@ def plot_session(session: Session, out_dir: str | Path) -> list[Path]:
         axes[-1, 0].set_xlabel("t [s]")
         fig.suptitle(f"{title}: loop timing")
         _save(fig, out / "loop_timing.png", written)
+    written += chapter5.session_figures(session, out)   # figs. 5.3-5.9 for chapter 5 runs
     return written
 
 
@@ -850,6 +852,7 @@ def compare(sessions: Sequence[Session], out_dir: str | Path) -> list[Path]:
         for key in keys:
             writer.writerow([key, *(values.get(key, "") for _, values in rows)])
     written.append(table_csv)
+    written += chapter5.compare_sessions(sessions, labels, out)   # chapter 5 runs: one table
     return written
 
 

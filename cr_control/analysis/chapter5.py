@@ -130,8 +130,8 @@ def contact_metrics(run: ContactRun) -> dict[str, float]:
     return {
         "separated_s": float(np.count_nonzero(run.gap > GAP_TOL) * dt),
         "no_force_s": float(np.count_nonzero((run.f_m <= 0.0) & (t > 0.0)) * dt),
-        "f_m_min_N": float(np.min(run.f_m[t >= STARTUP_S])),
-        "f_m_min_after_N": float(np.min(run.f_m[after])),
+        "f_m_min_N": float(np.min(run.f_m[t >= STARTUP_S])) + 0.0,     # + 0.0: no -0.0
+        "f_m_min_after_N": float(np.min(run.f_m[after])) + 0.0,
         "f_err_rms_after_N": _rms(run.f_dm - run.f_m[after]),
         "pos_err_rms_m": _rms(e),
         "pos_err_rms_after_m": _rms(e[after]),
@@ -145,15 +145,19 @@ def contact_metrics(run: ContactRun) -> dict[str, float]:
 
 #: Columns of :func:`metrics_table`: (key, header, scale, format).
 TABLE_COLUMNS = [
-    ("separated_s", "separated [ms]", 1e3, "{:.0f}"),
-    ("f_m_min_after_N", "min f_m after dist. [N]", 1.0, "{:.2f}"),
-    ("f_err_rms_after_N", "f RMS err after [N]", 1.0, "{:.3f}"),
-    ("pos_err_rms_m", "pos RMS err [mm]", 1e3, "{:.2f}"),
-    ("pos_err_max_after_m", "pos max err after [mm]", 1e3, "{:.2f}"),
-    ("tau_peak_Nm", "peak |tau| [N m]", 1.0, "{:.2f}"),
+    ("separated_s", "sep. [ms]", 1e3, "{:.0f}"),
+    ("f_m_min_after_N", "min f_m [N]", 1.0, "{:.2f}"),
+    ("f_err_rms_after_N", "f err RMS [N]", 1.0, "{:.3f}"),
+    ("pos_err_rms_m", "e RMS [mm]", 1e3, "{:.2f}"),
+    ("pos_err_max_after_m", "e max [mm]", 1e3, "{:.2f}"),
+    ("tau_peak_Nm", "tau max [Nm]", 1.0, "{:.2f}"),
     ("d_m_min", "d_m min", 1.0, "{:.2f}"),
     ("d_m_max", "d_m max", 1.0, "{:.2f}"),
 ]
+#: What the columns mean (printed under the table).
+TABLE_NOTE = ("sep.: time outside the surface; min f_m, f err RMS (f_dm - f_m), e max: from "
+              "the disturbance on; e RMS: |r_d - r| over the run; tau max: peak |tau| of "
+              "both joints; d_m range over the run.")
 
 
 def metrics_table(rows: Sequence[tuple[str, dict[str, float]]]) -> str:
@@ -341,7 +345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import sys
 
     args = sys.argv[1:] if argv is None else list(argv)
-    print(metrics_table(side_by_side()), end="")
+    print(metrics_table(side_by_side()) + "\n" + TABLE_NOTE)
     if args:
         out = Path(args[0])
         runs = [offline_run(scheme) for scheme in SCHEMES]

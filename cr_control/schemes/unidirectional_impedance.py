@@ -163,6 +163,11 @@ class UnidirectionalImpedanceController(Controller):
         self.pack_gains()
         self._output = KernelOutput(self.n_joints, len(self.status_fields) - 1)
         self._kernel = type(self).kernel
+        # Load the compiled kernel now (1-2 s from numba's cache on a slow machine), not in
+        # the first control cycle; the law has no state, so this leaves no trace.
+        n = self.n_joints
+        self._kernel(self.task.chain, self.gains, 0.0, np.full(n, 0.5), np.zeros(n), np.zeros(3),
+                     self._output.new())
 
     def pack_gains(self) -> None:
         """Copy the current parameter values into the packed gains the kernel reads."""
