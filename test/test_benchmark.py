@@ -267,3 +267,15 @@ def test_recorder_missed_from_its_exit_line():
     assert bm.parse_recorder_missed(clean) == 0
     assert bm.parse_recorder_missed(lossy) == 6947
     assert bm.parse_recorder_missed("Traceback ...") is None
+
+
+def test_claimed_domains_one_held_at_a_time():
+    from cr_control.core import ros_env
+
+    domains = bm.claimed_domains(None)
+    first, second = next(domains), next(domains)
+    assert first != second
+    assert all(FIRST_DOMAIN <= d < FIRST_DOMAIN + DOMAIN_SPAN for d in (first, second))
+    assert second in ros_env._held and first not in ros_env._held
+    domains.close()
+    assert second not in ros_env._held

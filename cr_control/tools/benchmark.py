@@ -50,7 +50,7 @@ import tempfile
 import threading
 import time
 from array import array
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,7 +59,7 @@ from cr_control.core import topics
 from cr_control.core.ros_env import (
     DOMAIN_SPAN,
     FIRST_DOMAIN,
-    free_domain_id,
+    claim_free_domain,
     isolate_this_process,
     isolated_env,
 )
@@ -995,6 +995,27 @@ def domain_ids(base: int, count: int) -> list[int]:
     return [FIRST_DOMAIN + (base - FIRST_DOMAIN + i) % DOMAIN_SPAN for i in range(count)]
 
 
+def claimed_domains(base: int | None) -> Iterator[int]:
+    """Domain ids for the runs, one per run: each is held machine-wide (the session runner's
+    and the tests' locks, :mod:`cr_control.core.ros_env`) from when it is handed out until the
+    next one is, so no other run on this machine meets a benchmark run. ``base``: where the
+    search starts (default pid-based)."""
+    lock = None
+    i = 0
+    try:
+        while True:
+            start = None if base is None else domain_ids(base, i + 1)[-1]
+            new = claim_free_domain(start=start)  # before releasing: the next run gets a fresh id
+            if lock is not None:
+                lock.release()
+            lock = new
+            yield lock.domain_id
+            i += 1
+    finally:
+        if lock is not None:
+            lock.release()
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cr_benchmark", description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=10.0,
@@ -1030,7 +1051,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     out = args.out or Path(tempfile.mkdtemp(prefix="cr_benchmark-"))
     out.mkdir(parents=True, exist_ok=True)
-    domains = iter(domain_ids(args.domain_base if args.domain_base is not None else free_domain_id(), 20))
+    domains = claimed_domains(args.domain_base)
     progress = Progress()
     compute = not args.no_compute_time
     recorder_modules = args.recorder_module or [RECORDER_MODULE]
@@ -1080,6 +1101,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("cr_benchmark: interrupted", file=sys.stderr)
         return 130
+    finally:
+        domains.close()  # the last run's domain id is free again
     progress.begin("calibration")
     calibration["end"] = calibrate()
     total = time.monotonic() - t_start
