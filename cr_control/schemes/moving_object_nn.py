@@ -20,8 +20,9 @@ K_e = 20 I, K = 15 I, k_lambda = 15. Centres: even grids (crossing points) over 
 the thesis states, q^1 in [-1.2, 1.7] rad and q^1' in [-1, 1] rad/s: 12 x 10 = 120 nodes for
 the q^1 networks (M, G) and 5 x 4 x 3 x 2 = 120 for the (q^1, q^1') networks (C) - the
 thesis does not say how 120 nodes split over the axes. The branch s2 > 0 keeps q_d^1 inside
-the q range (theta1 in [0.97, 1.57], theta2 in [0.40, 1.56]); q_d^1' leaves [-1, 1] (see
-the tests). K_s is not given: 0.5 (N m), a documented choice. Initial weights zero.
+the q range (theta1 in [0.97, 1.57], theta2 in [0.40, 1.56]); q_d^1' slightly leaves
+[-1, 1] (theta1' in [-1.19, 1.22], theta2' in [-1.09, 1.07] rad/s; test_chapter2).
+K_s is not given: 0.5 (N m), a documented choice. Initial weights zero.
 
 The kinematics (L, J^1, n_c) need the link lengths, the base and the line - geometry, not
 dynamics. The true norms |M^1|, |C^1|, |G^1| published beside the estimates (figs. 2.10-

@@ -28,6 +28,12 @@ Initial state (the thesis gives none; DESIGN.md): at rest on the desired path of
 2.107) at t = 0 - object at x_o(0) = 0.1 (1 - sin 12), contact point at x_co(0) = y_co(0)
 = -cos(2)/12, elbow branch sin(theta2) > 0 - with the initial held effort the static one
 tau_0 = G(q0) - J_Phi^T lambda_0, so lambda(0) = lambda_0 = 2 N (= lambda_d) and q''(0) = 0.
+Starting at rest while the desired motion moves (x_o'(0) = -0.34 m/s) makes the schemes ask
+for ~20 N m in the first cycles: the plant node's default limits (URDF 20 N m, 1000 N m/s)
+clip some 30-50 of them, with lambda dipping to about -10 N for a few ms.
+
+Cost: one compiled call per period (4 RK4 stages + lambda at the new state, each a planar
+chain RNEA, mass matrix, tool kinematics and a Schur-complement KKT solve).
 """
 
 from __future__ import annotations
