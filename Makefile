@@ -24,11 +24,13 @@ $(STAMP): requirements.txt constraints.txt setup.py
 
 ## A recorded, analysed 10 s session: plant, controller and recorder over ROS 2 at 1 kHz.
 demo: $(STAMP)
+	$(BIN)/python -m cr_control.tools.warm_up $(SCHEME)
 	$(BIN)/cr_session --scheme $(SCHEME) --duration $(DURATION) --mode $(MODE) --out $(OUT) $(DEMO_ARGS)
 
-## Lint and the whole test suite.
+## Lint, compile the kernels once (numba caches them beside the sources), the whole test suite.
 test: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/python -m cr_control.tools.warm_up
 	$(BIN)/python -m pytest -q test
 
 ## Real-time figures and issue 6's targets (PASS/FAIL): sessions across processes, composed and

@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def matvec(A, x):
     """A x."""
     rows, cols = A.shape
@@ -20,7 +20,7 @@ def matvec(A, x):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def tmatvec(A, x):
     """A^T x."""
     rows, cols = A.shape
@@ -33,7 +33,7 @@ def tmatvec(A, x):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def matmul(A, B):
     """A B."""
     rows, inner = A.shape
@@ -47,7 +47,7 @@ def matmul(A, B):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def inv2(A):
     """Inverse of a 2x2 matrix."""
     det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
@@ -57,7 +57,7 @@ def inv2(A):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def outer(x, y):
     """x y^T."""
     out = np.empty((x.shape[0], y.shape[0]))
@@ -67,7 +67,7 @@ def outer(x, y):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def spectral_norm_2x2(A):
     """Largest singular value of a 2x2 matrix, closed form (an SVD costs ~10x more)."""
     a, b, c, d = A[0, 0], A[0, 1], A[1, 0], A[1, 1]

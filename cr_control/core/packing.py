@@ -52,13 +52,13 @@ class Layout:
         return out
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def block2(vector, start):
     """The 2x2 block of ``vector`` at ``start`` (a view)."""
     return vector[start:start + 4].reshape((2, 2))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def block(vector, start, size):
     """The ``size`` values of ``vector`` at ``start`` (a view)."""
     return vector[start:start + size]

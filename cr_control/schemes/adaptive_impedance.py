@@ -39,7 +39,7 @@ _I = _R + impedance.GAINS.size
 _EST = impedance.ESTIMATES
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, out, extras_at):
     """One cycle of (3.32) into ``out`` (task_space.split_output)."""
     r_d, v_d, a_d, f_d = packed_reference(gains[:_R], t)

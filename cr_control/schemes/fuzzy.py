@@ -25,7 +25,7 @@ import math
 from numba import njit
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def sigmoid(z):
     """1 / (1 + e^-z) without overflow for any finite z."""
     if z >= 0.0:
@@ -34,19 +34,19 @@ def sigmoid(z):
     return ez / (1.0 + ez)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def mu_positive(x, k_p):
     """(5.13) mu_positive(x) = 1 / (1 + e^(-k_p x))."""
     return sigmoid(k_p * x)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def mu_negative(x, k_n):
     """(5.14) mu_negative(x) = 1 / (1 + e^(k_n x))."""
     return sigmoid(-k_n * x)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rule_set_2_weights(s, e_fm, e_fmin, e_fmax, k_p, k_n):
     """(w_1, w_2, w_3) of (5.20): the normalised firing strengths of small, big and medium."""
     ps, ns = mu_positive(s, k_p), mu_negative(s, k_n)
@@ -62,7 +62,7 @@ def rule_set_2_weights(s, e_fm, e_fmin, e_fmax, k_p, k_n):
     return small / w, big / w, medium / w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rule_set_2_damping(s, e_fm, e_fmin, e_fmax, k_p, k_n, d_s, d_med, d_b):
     """Crisp d_m of (5.20): w_1 d_s + w_2 d_b + w_3 d_med."""
     w1, w2, w3 = rule_set_2_weights(s, e_fm, e_fmin, e_fmax, k_p, k_n)

@@ -59,7 +59,7 @@ _LAM, _KP, _KN, _DS, _DMED, _DB, _FMAX, _FMIN = (SCHEME_GAINS_AT + GAINS.offset(
                                                  for p in FUZZY_PARAMETERS)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def fuzzy_unidirectional_cycle(chain, gains, t, q, v, force, out):
     """One cycle of (5.7) with d_m from (5.20) and k_m = lambda d_m into ``out``."""
     r_d, v_d, a_d, r, r_dot, J, J_inv, jdot_v, f, n, gap, f_m, f_d = contact_state(

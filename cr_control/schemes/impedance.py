@@ -29,7 +29,7 @@ from cr_control.schemes.unidirectional_impedance import (
 _D, _K = SCHEME_GAINS_AT, SCHEME_GAINS_AT + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def impedance_cycle(chain, gains, t, q, v, force, out):
     """One cycle of (5.7) with the fixed d_m, k_m into ``out`` (task_space.split_output)."""
     r_d, v_d, a_d, r, r_dot, J, J_inv, jdot_v, f, n, gap, f_m, f_d = contact_state(

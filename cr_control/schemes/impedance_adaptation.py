@@ -92,7 +92,7 @@ def initial_state(values: dict) -> np.ndarray:
     return state
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _reference_model_step(A_m, B_m, x, dt):
     """One classical RK4 step of x' = F x, x = [e_m, e_m'], F = [[0, I], [-B_m, -A_m]] (3.8)."""
     def f(x):
@@ -108,7 +108,7 @@ def _reference_model_step(A_m, B_m, x, dt):
     return x + (dt / 6.0) * (k1 + k4 + 2.0 * (k2 + k3))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def impedance_update(gains, state, e, e_dot, dt):
     """Advance the reference model and the integrals by dt and set A_hat, B_hat, c_hat, varpi
     in ``state`` for the measured e, e' (3.8, 3.11-3.14)."""
@@ -148,7 +148,7 @@ def impedance_update(gains, state, e, e_dot, dt):
     state[_VARPI], state[_VARPI + 1] = varpi[0], varpi[1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def impedance_acceleration(state, e, e_dot):
     """A_hat e' + B_hat e - c_hat: the adaptive-impedance part of u_0 (3.6)."""
     return (matvec(block2(state, _AH), e_dot) + matvec(block2(state, _BH), e)

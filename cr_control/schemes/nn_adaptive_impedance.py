@@ -116,7 +116,7 @@ def desired_joint_ranges(task, samples: int = 400) -> tuple[np.ndarray, np.ndarr
     return rows.min(axis=0), rows.max(axis=0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def nn_adaptive_impedance_cycle(kinematic_chain, gains, state, centres_q, centres_qv, t, dt,
                                 q, v, force, out, extras_at):
     """One cycle of (3.76) with the weight laws (3.79-3.81) into ``out``."""

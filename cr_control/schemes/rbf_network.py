@@ -23,7 +23,7 @@ def grid_centres(low: np.ndarray, high: np.ndarray, per_dim: int) -> np.ndarray:
         np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def activations(centres, inv_variance, x):
     """xi_i(x) = exp(-|x - mu_i|^2 / sigma^2) (3.69) for every centre mu_i (rows)."""
     nodes, dim = centres.shape
@@ -37,7 +37,7 @@ def activations(centres, inv_variance, x):
     return xi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def adapt(theta, xi, gain_dt, y):
     """theta += gain_dt * xi y^T: one explicit Euler step of theta_k' = Gamma xi y_k."""
     nodes, elements = theta.shape
@@ -47,7 +47,7 @@ def adapt(theta, xi, gain_dt, y):
             theta[i, k] += g * y[k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def output(xi, theta):
     """xi^T theta: every element's estimate theta_k^T xi."""
     nodes, elements = theta.shape

@@ -11,7 +11,7 @@ from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cosine_reference(offset, amplitude, phase, w, t):
     """(r_d, r_d', r_d'') of r_d(t) = offset - amplitude * cos(w t + phase), per axis, exact
     derivatives (3.93: x_d = -0.1 cos 2t, y_d = 0.35 - 0.1 cos 2t; 5.21-5.22 with phases)."""
@@ -58,7 +58,7 @@ _OFFSET, _AMPLITUDE, _PHASE, _W, _F_D = (
                                   "reference_frequency", "desired_force"))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def packed_reference(gains, t):
     """(r_d, r_d', r_d'', f_d) from a packed REFERENCE block at time t."""
     r, v, a = cosine_reference(gains[_OFFSET:_OFFSET + 2], gains[_AMPLITUDE:_AMPLITUDE + 2],

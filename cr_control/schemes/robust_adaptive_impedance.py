@@ -69,7 +69,7 @@ UNCERTAINTY_PARAMETERS = [
 ROBUST_GAINS = Layout(delta_M=1, delta_C=1, delta_G=1, delta_f=1)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def robust_adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, out, extras_at):
     """One cycle of (3.48) into ``out`` (task_space.split_output)."""
     (r_d, v_d, a_d, f_d, r, r_dot, J, J_inv, e, e_dot, s, v_eq, a_eq) = sliding_front(

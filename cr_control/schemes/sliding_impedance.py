@@ -80,7 +80,7 @@ def sliding_parameters(D: float, K: float, K_s: float, boundary_layer: float) ->
     ]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def boundary_layer_sign(s, delta):
     """sgn(s) with the boundary layer of remark 3.3.1, per component: clip(s/Delta, -1, 1)."""
     out = np.empty(s.shape[0])
@@ -89,7 +89,7 @@ def boundary_layer_sign(s, delta):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def compensator_update(D, K_1, K_2, d_sign, z, z_dot, dt, e, e_dot, v_d, a_d, A_hat, B_hat,
                        c_hat):
     """Advance z by dt (Euler, with the z' of the last cycle), set z' (3.40) with the gains
@@ -144,7 +144,7 @@ _A_HAT, _B_HAT, _C_HAT = (impedance.STATE.offset(n) for n in ("A_hat", "B_hat", 
 _N_EST = len(impedance.ESTIMATE_FIELDS)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sliding_front(chain, gains, state, t, dt, q, v):
     """The part of (3.48, 3.76) before the model terms: reference, task state, impedance
     estimates, compensator. Returns (r_d, v_d, a_d, f_d, r, r', J, e, e', s, r_eq', r_eq'')."""
@@ -162,7 +162,7 @@ def sliding_front(chain, gains, state, t, dt, q, v):
     return r_d, v_d, a_d, f_d, r, r_dot, J, J_inv, e, e_dot, s, v_eq, a_eq
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J, e, s,
                  out, extras_at):
     """u = model_terms + K_s s + d sat(s/Delta) - f, tau = J^T u (3.48, 3.76) into ``out``

@@ -70,14 +70,14 @@ def arm_from_values(values: dict) -> TwoLinkArm:
 
 
 # -- compiled kernels (numba): the chain is the packed PlanarChain of the controller's model --
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def task_state(chain, q, v):
     """(r, r' = J q', J, J^-1, J' q') at (q, q')."""
     r, J, jdot_v = tool_kinematics(chain, q, v)
     return r, matvec(J, v), J, inv2(J), jdot_v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def torque_for_acceleration(chain, q, v, J, J_inv, jdot_v, a, f):
     """tau = J^T (M_r a + C_r r' + G_r - f), evaluated in joint space as
     M J^-1 (a - J' q') + C q' + G - J^T f (one recursive Newton-Euler pass)."""
@@ -85,7 +85,7 @@ def torque_for_acceleration(chain, q, v, J, J_inv, jdot_v, a, f):
     return rnea(chain, q, v, qdd, True) - tmatvec(J, f)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def task_dynamics(chain, q, v, J_inv):
     """M_r, C_r, G_r of (3.2) at (q, q'): J^-T M J^-1, J^-T (M d(J^-1)/dt + C J^-1), J^-T G,
     with d(J^-1)/dt = -J^-1 J' J^-1 and C in Christoffel form."""
@@ -151,13 +151,13 @@ class KernelOutput:
         return ControlOutput(out[:n], out[n:n + N_REFERENCE], out[n + N_REFERENCE:])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def split_output(out, n):
     """(command, reference, status) views of a cycle's output vector."""
     return out[:n], out[n:n + N_REFERENCE], out[n + N_REFERENCE:]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def write_task_space(out, r_d, v_d, a_d, f_d, r, r_dot, f, e, tau):
     """Fill the output vector: command tau, reference (topics.REFERENCE_FIELDS after stamp)
     and the task-space part of the status (topics.STATUS_FIELDS after stamp); the rest of

@@ -100,7 +100,7 @@ STATUS_FIELDS = ["f_m", "gap", "n_x", "n_y", "s", "d_m", "k_m"]
 N_EXTRA = len(STATUS_FIELDS)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def contact_state(chain, gains, t, q, v, force):
     """Everything (5.7) and the fuzzy rules need at time t from the measured state:
     (r_d, r_d', r_d'', r, r', J, J^-1, J' q', f, n, gap, f_m, f_d)."""
@@ -120,20 +120,20 @@ def contact_state(chain, gains, t, q, v, force):
     return r_d, v_d, a_d, r, r_dot, J, J_inv, jdot_v, f, n, dist - gains[_R], f_m, f_d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def normal_sliding(n, e, e_dot, lam):
     """s = n^T e_r' + lambda n^T e_r (5.18)."""
     return n[0] * e_dot[0] + n[1] * e_dot[1] + lam * (n[0] * e[0] + n[1] * e[1])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def impedance_torque(chain, gains, q, v, J, J_inv, jdot_v, a_d, e, e_dot, f, f_d, d_m, k_m):
     """tau of (5.7) with damping d_m and stiffness k_m (m_m from the shared gains)."""
     u = a_d + (d_m * e_dot + k_m * e + f - f_d) / gains[_MM]
     return torque_for_acceleration(chain, q, v, J, J_inv, jdot_v, u, f)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def write_status(out, r_d, v_d, a_d, f_d, r, r_dot, f, e, tau, f_m, gap, n, s, d_m, k_m):
     """Fill the cycle's output vector (task-space part, then STATUS_FIELDS at the end)."""
     status = write_task_space(out, r_d, v_d, a_d, f_d, r, r_dot, f, e, tau)

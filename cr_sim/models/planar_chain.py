@@ -49,7 +49,7 @@ PER_LINK = 6  # a_x, a_y, rho_x, rho_y, m, I
 GEOMETRY_ROWS = 8
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def geometry_into(chain, q, geo):
     """Fill ``geo`` (GEOMETRY_ROWS x n) for configuration q."""
     n = int(chain[0])
@@ -65,7 +65,7 @@ def geometry_into(chain, q, geo):
         x, y = x + geo[2, i], y + geo[3, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rnea_geo(chain, geo, v, a, gravity_on, scratch, tau):
     """tau = M(q) a + C(q, v) v + G(q) (G only if ``gravity_on``): 2-D recursive Newton-Euler.
 
@@ -97,7 +97,7 @@ def rnea_geo(chain, geo, v, a, gravity_on, scratch, tau):
         tau[i] = nz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mass_matrix_geo(chain, geo, M):
     """M(q) = sum_k m_k J_ck^T J_ck + I_k a_k a_k^T, with the centre-of-mass Jacobian columns
     dc_k/dq_i = perp(c_k - p_i) for i <= k (planar revolute chain)."""
@@ -115,7 +115,7 @@ def mass_matrix_geo(chain, geo, M):
             M[j, i] = total
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def tool_geo(chain, geo, v, J, out):
     """Tool position r (out[0:2]), Jacobian J (2 x n, r' = J q', column j = perp(r - p_j)) and
     J'(q, q') q' (out[2:4], the tool's acceleration at q'' = 0: a_{i+1} = a_i - w_i^2 e_i)."""
@@ -132,7 +132,7 @@ def tool_geo(chain, geo, v, J, out):
     out[0], out[1], out[2], out[3] = x, y, ax, ay
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def solve_spd_into(M, b, x):
     """x with M x = b for a symmetric positive-definite M: Cholesky in place (M is overwritten
     by its factor L in the lower triangle), no pivoting, no allocation."""
@@ -155,7 +155,7 @@ def solve_spd_into(M, b, x):
         x[i] = s / M[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def forward_dynamics_geo(chain, geo, v, tau, work, qdd):
     """q'' from M q'' + C q' + G = tau into ``qdd`` for the configuration whose geometry is
     ``geo``: one RNEA for C q' + G, the mass matrix from the centre-of-mass Jacobians,
@@ -172,7 +172,7 @@ def forward_dynamics_geo(chain, geo, v, tau, work, qdd):
 
 
 # -- allocating entry points (tests, controllers, Python) -------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rnea(chain, q, v, a, gravity_on):
     """tau = M(q) a + C(q, v) v + G(q) (G only if ``gravity_on``)."""
     n = int(chain[0])
@@ -184,7 +184,7 @@ def rnea(chain, q, v, a, gravity_on):
     return tau
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mass_matrix(chain, q):
     """M(q), symmetric positive definite."""
     n = int(chain[0])
@@ -195,7 +195,7 @@ def mass_matrix(chain, q):
     return M
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def solve_spd(M, b):
     """x with M x = b for a symmetric positive-definite M (M is left unchanged)."""
     x = np.empty(b.shape[0])
@@ -203,7 +203,7 @@ def solve_spd(M, b):
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def forward_dynamics(chain, q, v, tau):
     """q'' from M q'' + C q' + G = tau."""
     n = int(chain[0])
@@ -214,7 +214,7 @@ def forward_dynamics(chain, q, v, tau):
     return qdd
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def tool_kinematics(chain, q, v):
     """Tool position r, Jacobian J (2 x n, r' = J q') and J'(q, q') q'."""
     n = int(chain[0])
@@ -226,7 +226,7 @@ def tool_kinematics(chain, q, v):
     return out[:2], J, out[2:]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def tool_jacobian_dot(chain, q, v):
     """J'(q, q'): column j = -sum_{i >= j} w_i e_i (e_i the link vectors, the tool's for the
     last link, w_i the absolute angular rates): the time derivative of perp(r - p_j)."""
@@ -249,7 +249,7 @@ def tool_jacobian_dot(chain, q, v):
     return J_dot
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def coriolis_matrix(chain, q, v):
     """C(q, q') in Christoffel form (M' - 2C skew-symmetric, as Pinocchio's and 2.103):
     C_ij = sum_k c_ijk q'_k, c_ijk = (d_k M_ij + d_j M_ik - d_i M_jk)/2, with

@@ -21,7 +21,7 @@ PLANE = 0.0
 CIRCLE = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def surface_contact(surface, rx, ry, vx, vy):
     """(f_x, f_y, depth, n_x, n_y): contact force on the tool at position (rx, ry) moving with
     (vx, vy), penetration depth (negative = distance when separated) and outward normal."""

@@ -80,7 +80,7 @@ NOISE_PARAMETERS = [
 ]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _disturbance(disturbance, t):
     amplitude_x, amplitude_y, omega, start, duration = (
         disturbance[0], disturbance[1], disturbance[2], disturbance[3], disturbance[4])
@@ -97,7 +97,7 @@ def work_size(n: int) -> int:
     return GEOMETRY_ROWS * n + (6 * n + n * n) + 2 * n + 4 + n + 5 * 2 * n
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _derivative_into(chain, surface, disturbance, t, x, tau, work, out):
     """out = x' = [q', q''] with the contact and disturbance forces at the tool; ``work``
     holds work_size(n) floats (the RK4 buffers at its end are not touched)."""
@@ -126,7 +126,7 @@ def _derivative_into(chain, surface, disturbance, t, x, tau, work, out):
     forward_dynamics_geo(chain, geo, v, total, fd_work, out[n:])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sensors(chain, surface, x, out):
     n = x.shape[0] // 2
     r, J, _ = tool_kinematics(chain, x[:n], x[n:])
@@ -136,7 +136,7 @@ def _sensors(chain, surface, x, out):
     out[3], out[4], out[5], out[6] = r[0], r[1], r_dot[0], r_dot[1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def arm_on_surface_step(chain, surface, disturbance, t, x, tau, command, dt, substeps, sensors,
                         work):
     """Take ``command`` as the held torque ``tau`` if it has one finite value per joint
