@@ -398,12 +398,11 @@ class PlantNode(Node):
             self._resume()
         self._watch()
         start = time.perf_counter()
-        if self.safe_stop:
-            brake = self.limiter.bound(self.plant.safe_stop_command())
-            self._command_list = brake
-            self.command = np.array(brake)
         substeps = max(1, round(elapsed / self.period))  # steps of at most ~1.5 periods
         for _ in range(substeps):
+            if self.safe_stop:                           # brakes act on every substep
+                self._command_list = self.limiter.bound(self.plant.safe_stop_command())
+                self.command = np.array(self._command_list)
             self.plant.step(self.command, elapsed / substeps)
         self.stats.cycle(fresh, time.perf_counter() - start)
         if self._out_of_time():

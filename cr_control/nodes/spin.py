@@ -27,6 +27,7 @@ import re
 import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -139,7 +140,8 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
     for node in nodes:
         executor.add_node(node)
     until = Future() if until is None else until
-    previous = signal.signal(signal.SIGINT, _stop_on_first_interrupt(until))
+    in_main = threading.current_thread() is threading.main_thread()   # signals only there
+    previous = signal.signal(signal.SIGINT, _stop_on_first_interrupt(until)) if in_main else None
     try:
         # Without a timeout, EventsExecutor's spin() and spin_until_future_complete()
         # never deliver anything here (rclpy 7.1.6): wait in bounded slices instead.
@@ -153,7 +155,8 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
         if rclpy.ok():
             raise
     finally:
-        signal.signal(signal.SIGINT, previous)
+        if in_main:
+            signal.signal(signal.SIGINT, previous)
         executor.shutdown()
         for node in nodes:
             node.destroy_node()
