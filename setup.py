@@ -15,6 +15,9 @@ SCHEMES = [
     "fuzzy_unidirectional",
     "moving_object_adaptive",
     "moving_object_nn",
+    "backstepping_force",
+    "mrac_force",
+    "cmmsd_backstepping",
 ]
 
 setup(

@@ -6,11 +6,14 @@ from typing import Any
 
 from cr_control.core.parameters import resolve
 from cr_control.schemes.adaptive_impedance import AdaptiveImpedanceController
+from cr_control.schemes.backstepping_force import BacksteppingForceController
+from cr_control.schemes.cmmsd_backstepping import CMMSDBacksteppingController
 from cr_control.schemes.controller import Controller
 from cr_control.schemes.fuzzy_unidirectional import FuzzyUnidirectionalController
 from cr_control.schemes.impedance import ImpedanceController
 from cr_control.schemes.moving_object_adaptive import MovingObjectAdaptiveController
 from cr_control.schemes.moving_object_nn import MovingObjectNNController
+from cr_control.schemes.mrac_force import MRACForceController
 from cr_control.schemes.nn_adaptive_impedance import NNAdaptiveImpedanceController
 from cr_control.schemes.robust_adaptive_impedance import RobustAdaptiveImpedanceController
 
@@ -23,6 +26,9 @@ SCHEMES: dict[str, tuple[type[Controller], str]] = {
     "fuzzy_unidirectional": (FuzzyUnidirectionalController, "circular_surface"),
     "moving_object_adaptive": (MovingObjectAdaptiveController, "moving_object"),
     "moving_object_nn": (MovingObjectNNController, "moving_object"),
+    "backstepping_force": (BacksteppingForceController, "dynamic_constraint"),
+    "mrac_force": (MRACForceController, "dynamic_constraint"),
+    "cmmsd_backstepping": (CMMSDBacksteppingController, "cmmsd"),
 }
 
 

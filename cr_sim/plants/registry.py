@@ -7,6 +7,7 @@ from typing import Any
 
 from cr_control.core.parameters import Param, resolve
 from cr_sim.plants import circular_surface
+from cr_sim.plants import cmmsd, dynamic_constraint
 from cr_sim.plants import compliant_plane as compliant_plane_arm
 from cr_sim.plants import moving_object as moving_object_plant
 from cr_sim.plants.base import Plant
@@ -16,6 +17,8 @@ SCENARIOS: dict[str, tuple[list[Param], Callable[[dict], Plant]]] = {
     compliant_plane_arm.NAME: (compliant_plane_arm.PARAMETERS, compliant_plane_arm.CompliantPlaneArm),
     circular_surface.NAME: (circular_surface.PARAMETERS, circular_surface.CircularSurfaceArm),
     moving_object_plant.NAME: (moving_object_plant.PARAMETERS, moving_object_plant.MovingObjectPlant),
+    dynamic_constraint.NAME: (dynamic_constraint.PARAMETERS, dynamic_constraint.DynamicConstraint),
+    cmmsd.NAME: (cmmsd.PARAMETERS, cmmsd.CMMSD),
 }
 
 
