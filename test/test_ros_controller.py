@@ -93,6 +93,8 @@ def test_valid_change_is_accepted_and_used(controller):
     ("max_effort", ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=-1.0), "> 0"),
     ("A_hat_0", double_array([1.0, 1.0]), "read-only"),
     ("A_m", ParameterValue(type=ParameterType.PARAMETER_STRING, string_value="fast"), ""),
+    ("diagnostics_every", ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=0),
+     ">= 1"),
 ])
 def test_invalid_change_is_refused_and_old_value_stays(controller, name, value, reason):
     probe = controller[0]
