@@ -109,7 +109,11 @@ def plant_parameters(scenario: str) -> list[Param]:
 
 def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimiter:
     """The plant's command limits: effort bounds (``effort_limit``, else the URDF's) and
-    the torque-rate limit; position plants: the URDF's position and velocity limits."""
+    the torque-rate limit; position plants: the URDF's position and velocity limits.
+
+    A joint with no known effort limit (no URDF and none given) is left unbounded, with
+    no rate limit either: the node warns at start (see :func:`unlimited_joints`).
+    """
     limits = plant.joint_limits()
     n = len(plant.joint_names)
     if plant.command_interface == "position":
@@ -118,14 +122,18 @@ def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimit
     if len(given) not in (1, n):
         raise ParameterError(f"effort_limit needs 1 or {n} values, got {len(given)}")
     effort = []
-    for i, name in enumerate(plant.joint_names):
+    for i in range(n):
         value = given[0] if len(given) == 1 else given[i]
         urdf = float(limits.effort[i])
-        value = value if value > 0.0 else (urdf if 0.0 < urdf < np.inf else 0.0)
-        if value <= 0.0:
-            raise ParameterError(f"no effort limit for {name}: the URDF gives none, set effort_limit")
-        effort.append(value)
-    return CommandLimiter([-e for e in effort], effort, [settings["effort_rate_limit"]] * n, period)
+        effort.append(value if value > 0.0 else (urdf if 0.0 < urdf < np.inf else np.inf))
+    rate = [settings["effort_rate_limit"] if e < np.inf else np.inf for e in effort]
+    return CommandLimiter([-e for e in effort], effort, rate, period)
+
+
+def unlimited_joints(plant: Plant, limiter: CommandLimiter) -> list[str]:
+    """Joints whose commands the limiter does not bound."""
+    return [name for name, lo, hi in zip(plant.joint_names, limiter.lower, limiter.upper, strict=True)
+            if lo == -np.inf and hi == np.inf]
 
 
 class PlantNode(Node):
@@ -146,6 +154,10 @@ class PlantNode(Node):
         self.plant.brake_damping = self.settings["brake_damping"]
         self.plant.brake_stiffness = self.settings["brake_stiffness"]
         self.limiter = command_limiter(self.plant, self.settings, self.period)
+        if unbounded := unlimited_joints(self.plant, self.limiter):
+            self.get_logger().warn(f"no command limit known for {unbounded} (no URDF limit): "
+                                   "commands to them are not bounded" + ("; set effort_limit" if
+                                   self.plant.command_interface == "effort" else ""))
         self.finished = Future()
         self.stats = LoopStats()
 

@@ -44,6 +44,18 @@ def test_effort_limits_come_from_the_urdf_and_the_rate_limit_from_libfranka():
     assert given.upper == [5.0, 20.0]
 
 
+def test_every_scenario_gets_limits_or_is_left_unbounded_with_a_warning():
+    from cr_sim.plant_node import unlimited_joints
+    from cr_sim.plants.registry import SCENARIOS
+
+    for name in SCENARIOS:
+        plant = make_plant(name)
+        limiter = command_limiter(plant, SETTINGS, PERIOD)      # never refuses to start
+        bounded = [n for n in plant.joint_names if n not in unlimited_joints(plant, limiter)]
+        if plant.command_interface == "effort" and getattr(plant, "arm", None) is not None:
+            assert bounded == list(plant.joint_names), name
+
+
 def test_commands_are_clipped_into_bounds_and_rate_and_counted():
     limiter = CommandLimiter([-20.0, -20.0], [20.0, 20.0], [1000.0, 1000.0], PERIOD)
     assert limiter.limit([1e9, -3.0], None) == [20.0, -3.0]          # first: bounds only
