@@ -66,7 +66,8 @@ def observer_transform(A, B, C, theta):
     return np.linalg.solve(O_oc, O_p)
 
 
-@pytest.mark.parametrize("lam,tolerance", [(LAMBDA, None), (list(bs.observer_coefficients([-2.0] * 5)), 1e-6)])
+@pytest.mark.parametrize("lam,tolerance", [(LAMBDA, None),
+                                           (list(bs.observer_coefficients([-2.0] * 5)), 1e-6)])
 def test_k_filters_reconstruct_the_observer_canonical_state(lam, tolerance):
     """4.23-4.24: with the true theta, y - (xi + Omega^T theta) = eps with eps' = A0 eps."""
     values = resolve(dc.PARAMETERS, {})
