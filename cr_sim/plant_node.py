@@ -51,7 +51,7 @@ from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension
 
 from cr_control.core import topics
 from cr_control.core.parameters import Param, ParameterError
-from cr_control.nodes.qos import CONTROL_QOS, READY_QOS
+from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.ros_parameters import declare, police_changes
 from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
 from cr_sim.loop_stats import LoopStats
@@ -186,10 +186,10 @@ class PlantNode(Node):
         self._last_tick = 0.0
         self._last_publish_wall = 0.0
 
-        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, CONTROL_QOS)
-        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, CONTROL_QOS)
-        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, CONTROL_QOS)
-        self.clock_pub = self.create_publisher(Clock, topics.CLOCK, CONTROL_QOS) if self.lockstep else None
+        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, PUBLISH_QOS)
+        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, PUBLISH_QOS)
+        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, PUBLISH_QOS)
+        self.clock_pub = self.create_publisher(Clock, topics.CLOCK, PUBLISH_QOS) if self.lockstep else None
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                  topics.PLANT_TIMING_FIELDS)
         # Outgoing messages, built once and refilled in place every tick.

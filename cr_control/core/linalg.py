@@ -3,6 +3,8 @@ at 2x2 to 6x6 plain loops are faster than a BLAS call anyway)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -74,3 +76,12 @@ def spectral_norm_2x2(A):
     frob2 = a * a + b * b + c * c + d * d
     det = a * d - b * c
     return np.sqrt(0.5 * (frob2 + np.sqrt(max(frob2 * frob2 - 4.0 * det * det, 0.0))))
+
+
+@njit(cache=True, error_model="numpy")
+def all_finite(x):
+    """True if every value of the 1-D array x is finite (no overflow, no warning, no copy)."""
+    for i in range(x.shape[0]):
+        if not math.isfinite(x[i]):
+            return False
+    return True

@@ -28,6 +28,8 @@ STATUS_SUFFIX = "status"
 #: Depth of the RELIABLE/KEEP_LAST queues on the 1 kHz topics (depth 1 dropped
 #: messages across processes on these machines; 10 lost none).
 QOS_DEPTH = 10
+#: Depth of the writer history of the 1 kHz publishers (nodes/qos.py, PUBLISH_QOS).
+PUBLISH_DEPTH = 500
 
 LABEL_SEPARATOR = ","
 

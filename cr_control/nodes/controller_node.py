@@ -29,7 +29,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from cr_control.core import topics
-from cr_control.nodes.qos import CONTROL_QOS
+from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS
 from cr_control.nodes.ros_parameters import ParameterError, declare, police_changes
 from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
 from cr_control.schemes.registry import SCHEMES, controller_class
@@ -51,6 +51,7 @@ class ControllerNode(Node):
         if values["diagnostics_every"] < 1:
             raise ParameterError("parameter diagnostics_every must be >= 1")
         self.controller = cls(values)
+        self.controller.warm_up()   # load the compiled kernels now, not in the first cycle
         self.controller.log_warning = self.get_logger().warn   # Controller rate-limits its own
         self.add_on_set_parameters_callback(self._check_counts)
         police_changes(self, specs, self._apply)
@@ -65,11 +66,11 @@ class ControllerNode(Node):
         self._answered = False
 
         publish = self.create_publisher
-        self.command_pub = publish(JointState, topics.JOINT_COMMANDS, CONTROL_QOS)
-        self.reference_pub = publish(Float64MultiArray, f"~/{topics.REFERENCE_SUFFIX}", CONTROL_QOS)
-        self.status_pub = publish(Float64MultiArray, f"~/{topics.STATUS_SUFFIX}", CONTROL_QOS)
+        self.command_pub = publish(JointState, topics.JOINT_COMMANDS, PUBLISH_QOS)
+        self.reference_pub = publish(Float64MultiArray, f"~/{topics.REFERENCE_SUFFIX}", PUBLISH_QOS)
+        self.status_pub = publish(Float64MultiArray, f"~/{topics.STATUS_SUFFIX}", PUBLISH_QOS)
         forward = self.controller.values["forward_command_topic"]
-        self.forward_pub = publish(Float64MultiArray, forward, CONTROL_QOS) if forward else None
+        self.forward_pub = publish(Float64MultiArray, forward, PUBLISH_QOS) if forward else None
         # Outgoing messages, built once and refilled in place every cycle.
         self._command_msg = JointState(name=list(self.joint_names))
         field = "position" if self.controller.command_interface == "position" else "effort"

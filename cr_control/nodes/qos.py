@@ -7,6 +7,13 @@ from cr_control.core import topics
 #: The 1 kHz loop topics: RELIABLE, KEEP_LAST topics.QOS_DEPTH.
 CONTROL_QOS = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 
+#: Publishers of the loop topics: the same, but a deep writer history. A RELIABLE writer
+#: keeps only its last ``depth`` samples for readers that have not acknowledged them; a
+#: recorder busy for a few tens of milliseconds while a lockstep loop runs at several kHz
+#: lost hundreds of messages per topic with 10. Readers keep depth 10 (a controller that
+#: fell behind should not work through a backlog of stale states); matching is unaffected.
+PUBLISH_QOS = QoSProfile(depth=topics.PUBLISH_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+
 #: The recorder's ready flag: latched, so a plant that starts later still sees it.
 READY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from cr_control.core.linalg import all_finite
 from cr_control.core.parameters import Param
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 
@@ -121,6 +122,15 @@ class Controller(ABC):
                 force: np.ndarray) -> ControlOutput:
         """The control law at time t (s since the first state), dt since the last call."""
 
+    def warm_up(self) -> None:
+        """Run the law once on a throw-away state so the first real cycle does not pay for
+        loading (or compiling) its compiled kernels; ``internal`` is restored afterwards."""
+        saved = None if self.internal is None else self.internal.copy()
+        n = self.n_joints
+        self.compute(0.0, 1e-3, np.full(n, 0.3), np.zeros(n), np.zeros(3))
+        if saved is not None:
+            np.copyto(self.internal, saved)
+
     def step(self, stamp: float, q: np.ndarray, v: np.ndarray, force: np.ndarray) -> ControlOutput:
         """One control cycle for the state measured at ``stamp`` (s).
 
@@ -176,7 +186,7 @@ class Controller(ABC):
             self._internal_good = internal.copy()            # the initial value
         out = self.compute(stamp - self._t0, dt, q, v, force)
         if internal is not None:
-            if math.isfinite(math.hypot(*internal.tolist())):   # no overflow, no warning
+            if all_finite(internal):
                 np.copyto(self._internal_good, internal)
             else:
                 np.copyto(internal, self._internal_good)

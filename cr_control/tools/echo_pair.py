@@ -43,7 +43,7 @@ from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension
 
 from cr_control.core import topics
 from cr_control.core.ros_env import isolate_this_process
-from cr_control.nodes.qos import CONTROL_QOS, READY_QOS
+from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.spin import spin_nodes
 from cr_sim.loop_stats import LoopStats
 
@@ -75,9 +75,9 @@ class EchoSource(Node):
         if wait_for_recorder:
             self.create_subscription(Bool, topics.RECORDER_READY, self._on_ready, READY_QOS)
 
-        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, CONTROL_QOS)
-        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, CONTROL_QOS)
-        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, CONTROL_QOS)
+        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, PUBLISH_QOS)
+        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, PUBLISH_QOS)
+        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, PUBLISH_QOS)
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                  topics.PLANT_TIMING_FIELDS)
         self.command_sub = self.create_subscription(JointState, topics.JOINT_COMMANDS,
@@ -177,7 +177,7 @@ class Echo(Node):
         super().__init__("echo", **kwargs)
         self.force = (0.0, 0.0, 0.0)
         self.answered = 0
-        self.command_pub = self.create_publisher(JointState, topics.JOINT_COMMANDS, CONTROL_QOS)
+        self.command_pub = self.create_publisher(JointState, topics.JOINT_COMMANDS, PUBLISH_QOS)
         self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, CONTROL_QOS)
         self.create_subscription(JointState, topics.JOINT_STATES, self._on_state, CONTROL_QOS)
 
@@ -206,14 +206,14 @@ class SyntheticLoad(Node):
         self._started = False
         self._t0 = 0.0
         self.recorder_ready = False
-        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, CONTROL_QOS)
-        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, CONTROL_QOS)
-        self.command_pub = self.create_publisher(JointState, topics.JOINT_COMMANDS, CONTROL_QOS)
+        self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, PUBLISH_QOS)
+        self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, PUBLISH_QOS)
+        self.command_pub = self.create_publisher(JointState, topics.JOINT_COMMANDS, PUBLISH_QOS)
         self.reference_pub = self.create_publisher(Float64MultiArray, topics.reference_topic(controller),
                                                    CONTROL_QOS)
         self.status_pub = self.create_publisher(Float64MultiArray, topics.status_topic(controller),
                                                 CONTROL_QOS)
-        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, CONTROL_QOS)
+        self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, PUBLISH_QOS)
         self._reference = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                 topics.REFERENCE_FIELDS)
         status_fields = topics.STATUS_FIELDS + [f"estimate_{i}" for i in range(SYNTHETIC_EXTRA_STATUS)]

@@ -204,6 +204,10 @@ class ArmOnSurface(Plant):
         self.sensors = np.zeros(len(SENSORS))
         self._work = np.empty(work_size(n))
         self.reset_state(q0)
+        # Load the compiled step now (a zero-length step on copies), not in the first cycle.
+        arm_on_surface_step(self.chain, self.surface, self.disturbance_packed, 0.0,
+                            self._x.copy(), self._effort.copy(), self._effort, 0.0, 1,
+                            self.sensors.copy(), self._work)
 
     def reset_state(self, q0, v0=None) -> None:
         """Put the arm at q0 (at rest unless v0 is given), time unchanged."""
