@@ -20,7 +20,6 @@ import subprocess
 import sys
 import sysconfig
 import time
-import warnings
 from pathlib import Path
 
 import pytest
@@ -156,14 +155,10 @@ def _check_stopped(what: str, proc: subprocess.Popen, log: Path, size_at_sigint:
     for mark in ("Traceback", "[FATAL]", "[ERROR]"):
         assert mark not in before, f"{what} logged {mark} while running:\n{before[-3000:]}"
     assert proc.returncode != -signal.SIGKILL, f"{what} did not stop within {STOP_TIMEOUT_S} s of SIGINT"
-    print(f"{what}: exit code {proc.returncode} after SIGINT")
-    if proc.returncode != 0:
-        # Known, tracked in issue 7 ("SIGINT to a running plant printed [FATAL] ..."): a
-        # callback that publishes while rclpy's SIGINT handler shuts the context down raises
-        # (RCLError "publisher's context is invalid") and the exit code is 1. Reported, not
-        # failed here; make this an assertion once the nodes' shutdown is fixed.
-        warnings.warn(f"{what} did not shut down cleanly (exit code {proc.returncode}, issue 7): "
-                      f"{after.strip().splitlines()[-1] if after.strip() else ''}", stacklevel=2)
+    last = after.strip().splitlines()[-1] if after.strip() else ""
+    assert proc.returncode == 0, f"{what} did not shut down cleanly (exit code {proc.returncode}): {last}"
+    for mark in ("Traceback", "[FATAL]"):
+        assert mark not in after, f"{what} logged {mark} while stopping:\n{after[-3000:]}"
 
 
 def _query(cr_param: Path, env: dict[str, str], node: str, name: str, procs: dict) -> str:
@@ -206,8 +201,10 @@ def test_installed_nodes_start_and_answer_parameter_queries(workspace, ros_env, 
         "adaptive_impedance": [str(lib / "adaptive_impedance"), "--ros-args", "--params-file",
                                str(share / "config" / "adaptive_impedance.yaml"),
                                "--params-file", str(override)],
+        # Lockstep: this test is about the install tree, not about holding 1 kHz on a busy
+        # machine (a real-time plant would rightly brake when a loaded CI starves the loop).
         "plant": [str(lib / "plant"), "--ros-args", "--params-file",
-                  str(share / "config" / "plant_compliant_plane.yaml")],
+                  str(share / "config" / "plant_compliant_plane.yaml"), "-p", "mode:=lockstep"],
     }
     procs: dict[str, tuple[subprocess.Popen, Path]] = {}
     try:
