@@ -81,7 +81,7 @@ def spectral_norm_2x2(A):
 @njit(cache=True, error_model="numpy")
 def all_finite(x):
     """True if every value of the 1-D array x is finite (no overflow, no warning, no copy)."""
-    for i in range(x.shape[0]):
+    for i in range(x.shape[0]):  # noqa: SIM110 - a generator in all() is slower under numba
         if not math.isfinite(x[i]):
             return False
     return True

@@ -6,8 +6,7 @@ from collections.abc import Callable
 from typing import Any
 
 from cr_control.core.parameters import Param, resolve
-from cr_sim.plants import circular_surface
-from cr_sim.plants import cmmsd, dynamic_constraint
+from cr_sim.plants import circular_surface, cmmsd, dynamic_constraint
 from cr_sim.plants import compliant_plane as compliant_plane_arm
 from cr_sim.plants import moving_object as moving_object_plant
 from cr_sim.plants.base import Plant
