@@ -1,18 +1,24 @@
 """The plant node: one simulated scenario on the topic contract, realtime or lockstep.
 
 - ``realtime``: a wall-clock timer at ``rate_hz``; each tick integrates the wall time
-  elapsed since the last one with the latest command held, then publishes the state.
+  elapsed since the last one (in whole periods, the remainder carried to the next tick)
+  with the latest command held, then publishes the state stamped with the wall clock.
 - ``lockstep``: publishes a state (and /clock) and steps one period only when the
   command computed from that state arrives: deterministic, faster than real time.
 
 Publishes /joint_states, the force/torque sensor wrench (same stamp), per-second loop
 statistics on /plant/timing, and stops by itself after ``duration`` seconds of
-simulated time (0 = run until stopped).
+simulated time (0 = run until stopped). Its command interface ("effort" or "position",
+:attr:`~cr_sim.plants.base.Plant.command_interface`) is advertised once, latched, on
+/plant/command_interface: a controller node of the other kind refuses to drive it.
 
 Safety (issue 7), modelled on libfranka:
 
-- Commands must name exactly the plant's joints, one finite value each; anything else
-  is refused (counted in ``commands_refused``) and the last good command stays.
+- Commands must name exactly the plant's joints, one finite value each, in the field of
+  the plant's interface (``position`` for position plants, ``effort`` otherwise: an
+  effort-only command to a position plant is refused, not read as zero positions);
+  anything else is refused (counted in ``commands_refused``) and the last good command
+  stays.
 - Every command is clipped into the joint limits (``effort_limit``, by default the
   URDF's ``<limit effort>``) and the rate limit (``effort_rate_limit``, libfranka's
   1000 N m/s) before it reaches the simulation (counted in ``commands_clipped``).
@@ -47,7 +53,7 @@ from rclpy.parameter import Parameter
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension, String
 
 from cr_control.core import topics
 from cr_control.core.parameters import Param, ParameterError
@@ -136,6 +142,21 @@ def unlimited_joints(plant: Plant, limiter: CommandLimiter) -> list[str]:
             if lo == -np.inf and hi == np.inf]
 
 
+def initial_command(plant: Plant) -> np.ndarray:
+    """What the plant holds before the first command: its own held input where it has one
+    (``plant.held``; the ch. 4 plant starts in equilibrium with delta_c = delta), else the
+    current positions for position plants (hold still) and zero efforts for effort plants.
+    A realtime plant steps with it until a controller answers; zero positions would pull
+    the ch. 4 end effector off the constraint."""
+    n = len(plant.joint_names)
+    held = getattr(plant, "held", None)
+    if held is not None and np.shape(held) == (n,) and np.all(np.isfinite(held)):
+        return np.array(held, dtype=float)
+    if plant.command_interface == "position":
+        return np.array(plant.measurement().position, dtype=float)
+    return np.zeros(n)
+
+
 class PlantNode(Node):
     """Runs a cr_sim scenario chosen by the ``scenario`` parameter."""
 
@@ -160,9 +181,13 @@ class PlantNode(Node):
                                    self.plant.command_interface == "effort" else ""))
         self.finished = Future()
         self.stats = LoopStats()
+        self.scenario = scenario["scenario"]
+        # First of our endpoints, so that whoever discovers the states discovers it too.
+        self.interface_pub = self.create_publisher(String, topics.PLANT_COMMAND_INTERFACE, READY_QOS)
+        self.interface_pub.publish(String(data=self.plant.command_interface))
 
         n = len(self.joint_names)
-        self.command = np.zeros(n)
+        self.command = initial_command(self.plant)     # held until the first command
         self._command_list: list[float] | None = None   # last applied command, for the rate limit
         self.command_stamp: int | None = None            # stamps as integer nanoseconds
         self.state_stamp: int | None = None
@@ -184,6 +209,7 @@ class PlantNode(Node):
         self._recorder_ready = not self.settings["wait_for_recorder"]
         self._t0_wall = 0.0
         self._last_tick = 0.0
+        self._carry = 0.0          # realtime: wall time not yet simulated (s)
         self._last_publish_wall = 0.0
 
         self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, PUBLISH_QOS)
@@ -215,7 +241,8 @@ class PlantNode(Node):
                                                autostart=False)
         self._start_timer = self.create_timer(0.01, quiet_on_shutdown(self, self._try_start))
         self.get_logger().info(
-            f"scenario {scenario['scenario']}, {self.settings['mode']} at {self.settings['rate_hz']:g} Hz, "
+            f"scenario {scenario['scenario']} ({self.plant.command_interface} commands), "
+            f"{self.settings['mode']} at {self.settings['rate_hz']:g} Hz, "
             f"joints {self.joint_names}, command limits {self.limiter.lower}..{self.limiter.upper}, "
             f"watchdog {self._watchdog}"
             + ("" if self._watchdog == "disabled" else f" after {self._missed_limit} missed cycles")
@@ -326,12 +353,24 @@ class PlantNode(Node):
         self.get_logger().warn(f"refused a command ({why}); {self.stats.commands_refused} so far; "
                                "holding the last good one", throttle_duration_sec=5.0)
 
+    def _wrong_field(self, msg: JointState) -> str:
+        """Why ``msg`` is not a command of our interface ("" if it is one)."""
+        ours, theirs = (("positions", "efforts") if self._position_interface
+                        else ("efforts", "positions"))
+        given = msg.position if self._position_interface else msg.effort
+        other = msg.effort if self._position_interface else msg.position
+        if len(given) == 0 and len(other) > 0:
+            return (f"it carries {theirs} but this plant takes {ours} (scenario "
+                    f"{self.scenario})")
+        return ""
+
     def _on_command(self, msg: JointState) -> None:
         values = msg.position if self._position_interface else msg.effort
         if msg.name != self.joint_names or len(values) != len(self.joint_names):
             values = self._reorder(msg.name, values)
             if values is None:
-                self._refuse(f"it names {list(msg.name)} with {len(msg.effort)} efforts and "
+                self._refuse(self._wrong_field(msg) or
+                             f"it names {list(msg.name)} with {len(msg.effort)} efforts and "
                              f"{len(msg.position)} positions; the plant's joints are {self.joint_names}")
                 return
         limited = self.limiter.limit(values, self._command_list)
@@ -410,12 +449,18 @@ class PlantNode(Node):
             self._resume()
         self._watch()
         start = time.perf_counter()
-        substeps = max(1, round(elapsed / self.period))  # steps of at most ~1.5 periods
+        # Whole periods, the rest carried to the next tick: every step has the same dt
+        # (an LTI plant's exact discretisation is then computed once, not every tick:
+        # ~190 us -> ~4 us for the ch. 4 plant) and simulated time follows wall time to
+        # within a period.
+        due = elapsed + self._carry
+        substeps = max(1, round(due / self.period))
+        self._carry = max(due - substeps * self.period, -self.period)
         for _ in range(substeps):
             if self.safe_stop:                           # brakes act on every substep
                 self._command_list = self.limiter.bound(self.plant.safe_stop_command())
                 self.command = np.array(self._command_list)
-            self.plant.step(self.command, elapsed / substeps)
+            self.plant.step(self.command, self.period)
         self.stats.cycle(fresh, time.perf_counter() - start)
         if self._out_of_time():
             self._finish()

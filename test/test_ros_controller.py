@@ -164,3 +164,47 @@ def test_cr_param_sets_refuses_and_gets(controller):
     got = cr_param("get", NODE, "Q_b")
     assert got.returncode == 0 and "7.0, 7.0" in got.stdout
     assert "Q_b" in cr_param("list", NODE).stdout.split()
+
+
+def test_position_scheme_checks_the_advertised_interface(ros_env):
+    """A position scheme (backstepping_force, 1 joint) answers a state with a position-only
+    command once the plant advertises "position" (latched /plant/command_interface); when
+    the advertised interface turns to "effort" it logs one ERROR line and exits with code 1."""
+    from std_msgs.msg import String
+
+    from cr_control.nodes.qos import READY_QOS
+
+    proc = subprocess.Popen([sys.executable, "-m", "cr_control.nodes.controller_node",
+                             "backstepping_force"], env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    probe = RosProbe(int(ros_env["ROS_DOMAIN_ID"]))
+    try:
+        commands = []
+        probe.node.create_subscription(JointState, topics.JOINT_COMMANDS, commands.append, QOS)
+        advertise = probe.node.create_publisher(String, topics.PLANT_COMMAND_INTERFACE, READY_QOS)
+        advertise.publish(String(data="position"))
+        states = probe.node.create_publisher(JointState, topics.JOINT_STATES, QOS)
+        assert probe.spin_until(lambda: states.get_subscription_count() > 0, 60), "not subscribed"
+        stamp = itertools.count(1_000_000_000, 1_000_000)
+
+        def answered():
+            msg = JointState(name=["delta"], position=[0.225], velocity=[0.0])
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(next(stamp), 1_000_000_000)
+            states.publish(msg)
+            probe.spin_until(lambda: commands, timeout=0.05)
+            return bool(commands)
+
+        assert probe.spin_until(answered, timeout=30), "no command came back"
+        cmd = commands[-1]
+        assert list(cmd.name) == ["delta"] and len(cmd.position) == 1 and len(cmd.effort) == 0
+        assert math.isfinite(cmd.position[0])
+        advertise.publish(String(data="effort"))
+        assert probe.spin_until(lambda: proc.poll() is not None, timeout=30), "did not exit"
+    finally:
+        probe.close()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=15)
+    assert proc.returncode == 1, out[-3000:]
+    assert out.count("backstepping_force commands positions but the plant takes efforts: "
+                     "refusing to drive it") == 1, out[-3000:]

@@ -129,3 +129,8 @@ STATUS_FIELDS = [
 #: the control computation, ``out_time_us`` building and publishing the previous
 #: cycle's command, reference and status. Not in the offline loop (no messages there).
 NODE_STATUS_FIELDS = ["in_time_us", "out_time_us"]
+
+#: The plant's command interface, ``std_msgs/String`` "effort" or "position", latched
+#: (RELIABLE, TRANSIENT_LOCAL, depth 1; published once at start): a controller node whose
+#: scheme commands the other kind refuses to drive the plant and exits (issue 9).
+PLANT_COMMAND_INTERFACE = "/plant/command_interface"

@@ -2,7 +2,8 @@
 
 Like a ROS 2 component container: the same node classes as the separate executables,
 sharing one EventsExecutor, for the lowest state -> command latency. The process ends
-when the plant finishes its ``duration``.
+when the plant finishes its ``duration``, or with code 1 when the controller refuses the
+plant (a scenario of the other command interface, see controller_node).
 
     python -m cr_control.nodes.container SCHEME [--ros-args --params-file FILE ...]
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+from rclpy.task import Future
 
 from cr_control.nodes.controller_node import ControllerNode
 from cr_control.nodes.spin import spin_nodes, start_nodes
@@ -21,7 +23,8 @@ from cr_sim.plant_node import PlantNode
 
 def main(args: list[str] | None = None) -> int:
     """Run the plant and the controller of the scheme named first on the command line
-    (exit 2 for an unknown scheme, 1 with one line on stderr if a node refuses to start)."""
+    (exit 2 for an unknown scheme, 1 with one line on stderr if a node refuses to start,
+    1 if the controller refuses the plant's command interface)."""
     argv = list(sys.argv if args is None else args)
     if len(argv) < 2 or argv[1] not in SCHEMES:
         print(f"usage: container SCHEME [--ros-args ...]; schemes: {sorted(SCHEMES)}", file=sys.stderr)
@@ -31,8 +34,12 @@ def main(args: list[str] | None = None) -> int:
     nodes = start_nodes("container", argv, lambda: [ControllerNode(scheme), PlantNode()])
     if nodes is None:
         return 1
-    spin_nodes(nodes, until=nodes[1].finished)
-    return 0
+    controller, plant = nodes
+    done = Future()
+    for future in (plant.finished, controller.refused):
+        future.add_done_callback(lambda _: done.done() or done.set_result(True))
+    spin_nodes(nodes, until=done)
+    return 1 if controller.refused.done() else 0
 
 
 if __name__ == "__main__":

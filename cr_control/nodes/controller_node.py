@@ -14,6 +14,14 @@ time goes: ``in_time_us`` (callback entry to compute start), ``compute_time_us``
 ``out_time_us`` (building and publishing the previous cycle's messages). numpy's
 floating-point warnings are off in the node process: :meth:`Controller.step` catches
 non-finite results itself and logs them, rate-limited.
+
+Command interface (issue 9): the plant advertises what it takes on the latched
+``/plant/command_interface`` ("effort" or "position"). A scheme that commands the other
+kind never publishes a command: the node logs one ERROR line (``adaptive_impedance commands
+efforts but the plant takes positions (scenario dynamic_constraint): refusing to drive
+it``) and exits with code 1. While a plant advertises but its value has not arrived yet,
+states are not answered (a lockstep plant sends them again); a plant that advertises
+nothing (another robot, a test probe) is driven as before.
 """
 
 from __future__ import annotations
@@ -24,12 +32,16 @@ import time
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.task import Future
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 
 from cr_control.core import topics
-from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS
+from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, Param
+from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.ros_parameters import ParameterError, declare, police_changes
 from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
 from cr_control.schemes.registry import SCHEMES, controller_class
@@ -40,6 +52,27 @@ def stamp_seconds(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+#: What each command interface sends, for the refusal message.
+INTERFACE_NOUNS = {"effort": "efforts", "position": "positions"}
+#: How long a refusing node waits for the plant's scenario name (s) before it exits.
+SCENARIO_WAIT_S = 1.0
+#: A node with no plant interface yet looks for an advertising plant at most this often (s).
+ADVERTISED_CHECK_S = 0.5
+
+
+def type_empty_lists(node: Node, specs: list[Param]) -> None:
+    """Give vector and matrix parameters set to ``[]`` in a params file an (empty) double
+    array: rcl's YAML parser cannot type an empty list and hands rclpy NOT_SET, which
+    ``declare`` would refuse (``theta_hat_0: []`` of cmmsd_backstepping, as the shipped
+    params file and every session's params.yaml write it)."""
+    overrides = node._parameter_overrides  # noqa: SLF001 - rclpy 7.1.6 has no public accessor
+    for spec in specs:
+        given = overrides.get(spec.name)
+        if (given is not None and given.type_ == Parameter.Type.NOT_SET
+                and spec.kind in VECTOR_KINDS + MATRIX_KINDS):
+            overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE_ARRAY, [])
+
+
 class ControllerNode(Node):
     """Runs the control scheme ``scheme`` on the topic contract of DESIGN.md."""
 
@@ -47,6 +80,7 @@ class ControllerNode(Node):
         super().__init__(scheme, **kwargs)
         cls = controller_class(scheme)
         specs = cls.parameters()
+        type_empty_lists(self, specs)
         values = declare(self, specs)
         if values["diagnostics_every"] < 1:
             raise ParameterError("parameter diagnostics_every must be >= 1")
@@ -64,6 +98,16 @@ class ControllerNode(Node):
         self.force = np.zeros(3)
         self._last_stamp: tuple[int, int] | None = None
         self._answered = False
+        # Command interface check: "unknown" until the plant says, then "ok" or "refused".
+        self.scheme = scheme
+        self.command_interface = self.controller.command_interface
+        self.refused = Future()         # done (True) once the node refused its plant
+        self._interface = "unknown"
+        self._plant_interface = ""
+        self._advertised = False
+        self._advertised_checked = -np.inf
+        self._scenario_future: Future | None = None
+        self._refused_at = 0.0
 
         publish = self.create_publisher
         self.command_pub = publish(JointState, topics.JOINT_COMMANDS, PUBLISH_QOS)
@@ -85,6 +129,13 @@ class ControllerNode(Node):
         self._reference_out = topics.array_field(self._reference_msg, "data", len(reference_fields))
         self._status_out = topics.array_field(self._status_msg, "data", len(status_fields))
         self._n_status = len(self.controller.status_fields)
+        # Latched like the recorder's ready flag (READY_QOS: RELIABLE, TRANSIENT_LOCAL, 1).
+        self.create_subscription(String, topics.PLANT_COMMAND_INTERFACE,
+                                 quiet_on_shutdown(self, self._on_plant_interface), READY_QOS)
+        # Made up front (EventsExecutor: see spin.py): the scenario for the refusal message.
+        self._plant_parameters = self.create_client(GetParameters, "/plant/get_parameters")
+        self._refusal_timer = self.create_timer(0.05, quiet_on_shutdown(self, self._refuse_when_ready),
+                                                autostart=False)
         self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, CONTROL_QOS)
         self.create_subscription(JointState, topics.JOINT_STATES,
                                  quiet_on_shutdown(self, self._on_joint_state), CONTROL_QOS)
@@ -104,6 +155,53 @@ class ControllerNode(Node):
         self.controller.set_parameter(name, value)
         if name == "diagnostics_every":
             self._diagnostics_every = value
+
+    # -- the plant's command interface -------------------------------------------------
+    def _on_plant_interface(self, msg: String) -> None:
+        interface = msg.data
+        if interface == self.command_interface:
+            if self._interface == "unknown":
+                self.get_logger().info(f"the plant takes {INTERFACE_NOUNS[interface]}, "
+                                       f"as {self.scheme} commands")
+                self._interface = "ok"
+            return
+        if self._interface == "refused":
+            return
+        self._interface = "refused"     # from now on no state is answered
+        self._plant_interface = interface
+        self._refused_at = time.monotonic()
+        if self._plant_parameters.service_is_ready():
+            self._scenario_future = self._plant_parameters.call_async(
+                GetParameters.Request(names=["scenario"]))
+        self._refusal_timer.reset()
+
+    def _refuse_when_ready(self) -> None:
+        """Log the refusal (with the plant's scenario once known, or after SCENARIO_WAIT_S)
+        and complete ``refused``: main() then exits with code 1."""
+        future = self._scenario_future
+        waited = time.monotonic() - self._refused_at
+        if future is not None and not future.done() and waited < SCENARIO_WAIT_S:
+            return
+        self._refusal_timer.cancel()
+        scenario = ""
+        if future is not None and future.done() and future.result() is not None:
+            values = future.result().values
+            if values and values[0].string_value:
+                scenario = f" (scenario {values[0].string_value})"
+        theirs = INTERFACE_NOUNS.get(self._plant_interface, repr(self._plant_interface))
+        self.get_logger().error(
+            f"{self.scheme} commands {INTERFACE_NOUNS[self.command_interface]} but the plant "
+            f"takes {theirs}{scenario}: refusing to drive it")
+        if not self.refused.done():
+            self.refused.set_result(True)
+
+    def _plant_advertises(self) -> bool:
+        """True if a plant advertises its command interface (checked every ADVERTISED_CHECK_S)."""
+        now = time.monotonic()
+        if now - self._advertised_checked >= ADVERTISED_CHECK_S:
+            self._advertised_checked = now
+            self._advertised = self.count_publishers(topics.PLANT_COMMAND_INTERFACE) > 0
+        return self._advertised
 
     # -- messages in ------------------------------------------------------------------
     def _on_wrench(self, msg: WrenchStamped) -> None:
@@ -141,6 +239,8 @@ class ControllerNode(Node):
 
     def _on_joint_state(self, msg: JointState) -> None:
         entry = time.perf_counter()
+        if self._interface != "ok" and (self._interface == "refused" or self._plant_advertises()):
+            return      # refused, or the plant's interface is on its way: no command
         header_stamp = msg.header.stamp
         stamp = (header_stamp.sec, header_stamp.nanosec)
         if stamp == self._last_stamp and self._answered:
@@ -180,7 +280,8 @@ def main(scheme: str | None = None, args: list[str] | None = None) -> int:
     """Run the controller node of ``scheme`` (first command-line argument if not given).
 
     Exit code 2 for an unknown scheme, 1 (with one line on stderr) if the node refuses
-    to start (a params file that is not YAML, a refused or mistyped value, ...).
+    to start (a params file that is not YAML, a refused or mistyped value, ...) or refuses
+    a plant that takes another command interface (one ERROR line in its log).
     """
     argv = list(sys.argv if args is None else args)
     if scheme is None:
@@ -193,8 +294,9 @@ def main(scheme: str | None = None, args: list[str] | None = None) -> int:
     nodes = start_nodes(scheme, argv, lambda: [ControllerNode(scheme)])
     if nodes is None:
         return 1
-    spin_nodes(nodes)
-    return 0
+    refused = nodes[0].refused
+    spin_nodes(nodes, until=refused)
+    return 1 if refused.done() and refused.result() is True else 0
 
 
 def _scheme_main(scheme: str):
