@@ -42,7 +42,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
-from cr_control.analysis import chapter5
+from cr_control.analysis import chapter2, chapter4, chapter5
 from cr_control.core import ros_yaml, topics
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -747,6 +747,8 @@ def plot_session(session: Session, out_dir: str | Path) -> list[Path]:
         fig.suptitle(f"{title}: loop timing")
         _save(fig, out / "loop_timing.png", written)
     written += chapter5.session_figures(session, out)   # figs. 5.3-5.9 for chapter 5 runs
+    written += chapter2.session_figures(session, out)   # figs. 2.4-2.12 for chapter 2 runs
+    written += chapter4.session_figures(session, out)   # figs. 4.2-4.11, appendix C
     return written
 
 
@@ -853,6 +855,8 @@ def compare(sessions: Sequence[Session], out_dir: str | Path) -> list[Path]:
             writer.writerow([key, *(values.get(key, "") for _, values in rows)])
     written.append(table_csv)
     written += chapter5.compare_sessions(sessions, labels, out)   # chapter 5 runs: one table
+    written += chapter2.compare_sessions(sessions, labels, out)   # chapter 2 runs: one table
+    written += chapter4.compare_sessions(sessions, labels, out)   # chapter 4 / appendix C
     return written
 
 
