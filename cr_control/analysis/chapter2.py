@@ -176,8 +176,8 @@ TABLE_COLUMNS = [
     ("lambda_min_N", "λ min [N]", 1.0, "{:.3f}"),
     ("lambda_max_N", "λ max [N]", 1.0, "{:.3f}"),
     ("lambda_err_rms_N", "λ err RMS [N]", 1.0, "{:.3f}"),
-    ("tau1_peak_Nm", "max |τ¹| [N m]", 1.0, "{:.3f}"),
-    ("tau2_peak_N", "max |τ²| [N]", 1.0, "{:.3f}"),
+    ("tau1_peak_Nm", "max \\|τ¹\\| [N m]", 1.0, "{:.3f}"),
+    ("tau2_peak_N", "max \\|τ²\\| [N]", 1.0, "{:.3f}"),
 ]
 TABLE_NOTE = ("Per window [a, b) s: e¹ = q_d¹ − q¹ (joint error of the arm), x_o err = "
               "x_o,d − x_o (object), x_co err = x_co,d − x_co (contact point on the object's "

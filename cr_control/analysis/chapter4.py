@@ -295,10 +295,10 @@ FORCE_NOTE = ("Settling: last time |f − f_d| left ±2 % of f_d (n/a: still out
               "cycle the controller held its last command (absurd or non-finite state: the "
               "loop diverged; '–' never); δ_c is clipped at ±max_effort = ±100 m.")
 CHAIN_COLUMNS = [
-    ("q1_max_tail_m", "max |q_1|, last 10 s [m]", 1.0, "{:.2e}"),
+    ("q1_max_tail_m", "max \\|q_1\\|, last 10 s [m]", 1.0, "{:.2e}"),
     ("settling_s", "settling 2 % [s]", 1.0, "{:.1f}"),
-    ("u_peak_N", "max |u| [N]", 1.0, "{:.3g}"),
-    ("q_max_m", "max |q_i| [m]", 1.0, "{:.3g}"),
+    ("u_peak_N", "max \\|u\\| [N]", 1.0, "{:.3g}"),
+    ("q_max_m", "max \\|q_i\\| [m]", 1.0, "{:.3g}"),
     ("theta_hat_norm_end", "‖θ̂‖ end", 1.0, "{:.4g}"),
     ("d_hat_end", "d̂ end", 1.0, "{:.4g}"),
     ("held_from_s", "held from [s]", 1.0, "{:.2f}"),
@@ -424,6 +424,15 @@ def _estimate_panels(run: ForceRun) -> list[tuple[str, list[str]]]:
     return [(label, [n for n in names if n in run.estimates]) for label, names in groups]
 
 
+def _tex(name: str) -> str:
+    """'b3_hat' -> $\\hat b_3$, 'r3p_hat' -> $\\hat r'_3$, 'd_hat' -> $\\hat d$."""
+    base = name.removesuffix("_hat")
+    prime = "'" if base.endswith("p") and len(base) > 2 else ""
+    base = base.removesuffix("p") if prime else base
+    sub = f"_{base[1:]}" if len(base) > 1 else ""
+    return rf"$\hat {base[0]}{prime}{sub}$"
+
+
 def plot_force_run(run: ForceRun, out_dir: str | Path) -> list[Path]:
     """One run as PNG in ``out_dir``: ch4_force (f, f_d, f_m), ch4_command (delta_c, delta),
     ch4_estimates (with the true values dotted). Returns the paths."""
@@ -471,8 +480,7 @@ def plot_force_run(run: ForceRun, out_dir: str | Path) -> list[Path]:
         fig, axes = figure(len(groups), height=2.2)
         for ax, (label, names) in zip(axes, groups, strict=True):
             for i, name in enumerate(names):
-                ax.plot(t, run.estimates[name], color=f"C{i}", lw=1.0,
-                        label=name.replace("_hat", "^"))
+                ax.plot(t, run.estimates[name], color=f"C{i}", lw=1.0, label=_tex(name))
                 if name in run.true:
                     ax.axhline(run.true[name], color=f"C{i}", ls=":", lw=1.0)
             ax.set_ylabel(label, fontsize="small")
