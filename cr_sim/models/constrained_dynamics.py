@@ -46,6 +46,7 @@ from cr_sim.models.planar_chain import (
     geometry_into,
     mass_matrix_geo,
     rnea_geo,
+    solve_spd_into,
     tool_geo,
 )
 
@@ -296,23 +297,7 @@ def kkt_solve_into(M, b, Jc, gamma, work, a, lam):
             for k in range(n):
                 t += Jc[i, k] * Y[j, k]
             S[i, j] = t
-    # S lam = r (S SPD, m small): Cholesky again
-    for i in range(m):
-        for j in range(i + 1):
-            s = S[i, j]
-            for k in range(j):
-                s -= S[i, k] * S[j, k]
-            S[i, j] = math.sqrt(s) if i == j else s / S[j, j]
-    for i in range(m):
-        s = r[i]
-        for k in range(i):
-            s -= S[i, k] * lam[k]
-        lam[i] = s / S[i, i]
-    for i in range(m - 1, -1, -1):
-        s = lam[i]
-        for k in range(i + 1, m):
-            s -= S[k, i] * lam[k]
-        lam[i] = s / S[i, i]
+    solve_spd_into(S, r, lam)   # S lam = r (S SPD, m small)
     for i in range(n):
         s = a0[i]
         for j in range(m):

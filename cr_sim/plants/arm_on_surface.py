@@ -30,7 +30,7 @@ from cr_sim.models.planar_chain import (
     tool_kinematics,
 )
 from cr_sim.models.surfaces import surface_contact
-from cr_sim.plants.base import Measurement, Plant
+from cr_sim.plants.base import Measurement, Plant, take_command
 
 #: Sensor values written by the step kernel: contact force, depth, tool position, velocity.
 SENSORS = ("f_x", "f_y", "depth", "r_x", "r_y", "v_x", "v_y")
@@ -142,13 +142,7 @@ def arm_on_surface_step(chain, surface, disturbance, t, x, tau, command, dt, sub
     """Take ``command`` as the held torque ``tau`` if it has one finite value per joint
     (else keep the last), advance x in place by ``dt``: ``substeps`` classical RK4 steps;
     write SENSORS at the new state into ``sensors``. Returns whether the command was taken."""
-    accepted = command.shape[0] == tau.shape[0]
-    if accepted:
-        for j in range(tau.shape[0]):
-            if not math.isfinite(command[j]):
-                accepted = False
-    if accepted:
-        tau[:] = command
+    accepted = take_command(tau, command)
     m = x.shape[0]
     rk = work.shape[0] - 5 * m
     k1, k2, k3 = work[rk:rk + m], work[rk + m:rk + 2 * m], work[rk + 2 * m:rk + 3 * m]

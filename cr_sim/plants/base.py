@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 @dataclass
@@ -46,6 +47,20 @@ class JointLimits:
         """No limits at all (plants without a model)."""
         inf = np.full(n, np.inf)
         return cls(inf.copy(), inf.copy(), -inf, inf.copy())
+
+
+@njit(cache=True, error_model="numpy")
+def take_command(held, command):
+    """Copy ``command`` into ``held`` if it has one finite value per entry of ``held``; else
+    leave ``held`` as it is (the plant keeps the last good input). Returns whether it did:
+    the check every plant kernel makes before it integrates (no NaN ever gets in)."""
+    if command.shape[0] != held.shape[0]:
+        return False
+    for j in range(held.shape[0]):
+        if not math.isfinite(command[j]):
+            return False
+    held[:] = command
+    return True
 
 
 class Plant(ABC):

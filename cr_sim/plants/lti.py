@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from cr_sim.plants.base import Plant
+from cr_sim.plants.base import Plant, take_command
 
 
 def expm(M: np.ndarray) -> np.ndarray:
@@ -45,13 +45,7 @@ def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
 def lti_step(Phi, Gam, x, held, command, work):
     """Take ``command`` as the held input if it has one finite value per input (else keep the
     last), then x <- Phi x + Gam held in place. Returns whether the command was taken."""
-    accepted = command.shape[0] == held.shape[0]
-    if accepted:
-        for j in range(held.shape[0]):
-            if not math.isfinite(command[j]):
-                accepted = False
-    if accepted:
-        held[:] = command
+    accepted = take_command(held, command)
     n = x.shape[0]
     for i in range(n):
         s = 0.0
