@@ -42,12 +42,14 @@ reported as ``publish_time_us``.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from dataclasses import replace
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
@@ -59,7 +61,7 @@ from cr_control.core import topics
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.ros_parameters import declare, police_changes
-from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
+from cr_control.nodes.spin import RCLError, quiet_on_shutdown, spin_nodes, start_nodes
 from cr_sim.loop_stats import LoopStats
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS
@@ -293,6 +295,9 @@ class PlantNode(Node):
             f"done: {self.plant.time:.3f} s simulated in {time.monotonic() - self._t0_wall:.3f} s wall, "
             f"{self.stats.total_cycles} cycles, {self.stats.commands_refused} commands refused, "
             f"{self.stats.commands_clipped} clipped" + (", in safe stop" if self.safe_stop else ""))
+        for publisher in list(self.publishers):   # the last messages reach the recorder
+            with contextlib.suppress(RCLError, RuntimeError):
+                publisher.wait_for_all_acked(Duration(seconds=2.0))
         self.finished.set_result(True)
 
     def _out_of_time(self) -> bool:

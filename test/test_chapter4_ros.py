@@ -103,6 +103,40 @@ def test_controller_refuses_a_plant_of_the_other_interface(scheme, scenario, mod
     assert "refused a command" not in plant_out, plant_out[-3000:]
 
 
+MISMATCH = ("adaptive_impedance commands efforts but the plant takes positions (scenario "
+            "dynamic_constraint): refusing to drive it")
+
+
+def test_session_runner_reports_the_refusing_controller(ros_env, tmp_path):
+    """The session runner's process group sees the controller exit early and shows its log
+    tail, which holds the reason."""
+    from cr_control.tools.session import ProcessGroup, SessionError
+
+    group = ProcessGroup(tmp_path, ros_env, progress=lambda _: None)
+    group.start("adaptive_impedance", [*CONTROLLER, "adaptive_impedance"])
+    group.start("plant", [*PLANT, "--ros-args", "-p", "scenario:=dynamic_constraint",
+                          "-p", "mode:=lockstep", "-p", "duration:=5.0"])
+    try:
+        with pytest.raises(SessionError) as err:
+            group.wait("plant", 90.0, "] [plant]: t=")
+    finally:
+        group.stop()
+    assert "adaptive_impedance exited early (code 1)" in str(err.value)
+    assert MISMATCH in str(err.value)
+
+
+def test_container_refuses_a_plant_of_the_other_interface(ros_env, tmp_path):
+    """Composed: the container ends with code 1 and the same line."""
+    params = tmp_path / "params.yaml"
+    params.write_text("plant:\n  ros__parameters:\n    scenario: dynamic_constraint\n"
+                      "    mode: lockstep\n")
+    proc = subprocess.run([sys.executable, "-m", "cr_control.nodes.container", "adaptive_impedance",
+                           "--ros-args", "--params-file", str(params)], env=ros_env,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1, proc.stderr[-3000:]
+    assert (proc.stdout + proc.stderr).count(MISMATCH) == 1
+
+
 @pytest.mark.parametrize("scenario,joints,wrong,right,why", [
     ("dynamic_constraint", ["delta"], {"effort": [0.5]}, {"position": [0.3]},
      "it carries efforts but this plant takes positions (scenario dynamic_constraint)"),

@@ -15,7 +15,7 @@ import sys
 import numpy as np
 from rclpy.task import Future
 
-from cr_control.nodes.controller_node import ControllerNode
+from cr_control.nodes.controller_node import ControllerNode, wait_for_acks
 from cr_control.nodes.spin import spin_nodes, start_nodes
 from cr_control.schemes.registry import SCHEMES
 from cr_sim.plant_node import PlantNode
@@ -36,8 +36,14 @@ def main(args: list[str] | None = None) -> int:
         return 1
     controller, plant = nodes
     done = Future()
+
+    def end(_) -> None:
+        if not done.done():
+            wait_for_acks(controller)   # the last status and command reach the recorder
+            done.set_result(True)
+
     for future in (plant.finished, controller.refused):
-        future.add_done_callback(lambda _: done.done() or done.set_result(True))
+        future.add_done_callback(end)
     spin_nodes(nodes, until=done)
     return 1 if controller.refused.done() else 0
 

@@ -26,6 +26,7 @@ nothing (another robot, a test probe) is driven as before.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 
@@ -33,6 +34,7 @@ import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import GetParameters
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
@@ -43,7 +45,7 @@ from cr_control.core import topics
 from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, Param
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.ros_parameters import ParameterError, declare, police_changes
-from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
+from cr_control.nodes.spin import RCLError, quiet_on_shutdown, spin_nodes, start_nodes
 from cr_control.schemes.registry import SCHEMES, controller_class
 
 
@@ -58,6 +60,15 @@ INTERFACE_NOUNS = {"effort": "efforts", "position": "positions"}
 SCENARIO_WAIT_S = 1.0
 #: A node with no plant interface yet looks for an advertising plant at most this often (s).
 ADVERTISED_CHECK_S = 0.5
+
+
+def wait_for_acks(node: Node, timeout_s: float = 2.0) -> None:
+    """Block until every RELIABLE publisher of ``node`` had its messages acknowledged (each
+    waits at most ``timeout_s``): call before a node is destroyed at the end of a run, or
+    a recorder misses the last messages still in flight."""
+    for publisher in list(node.publishers):
+        with contextlib.suppress(RCLError, RuntimeError):
+            publisher.wait_for_all_acked(Duration(seconds=timeout_s))
 
 
 def type_empty_lists(node: Node, specs: list[Param]) -> None:
