@@ -267,3 +267,16 @@ def test_set_parameters_is_per_parameter_atomically_is_all_or_nothing(served):
     assert [r.successful for r in results] == [True, False]
     assert list(node.get_parameter("Q_c").value) == [50.0, 50.0] and list(applied) == ["Q_c"]
     assert list(node.get_parameter("Q_a").value) != [1.0, -1.0]
+
+
+def test_recorder_refuses_misspelt_parameter(tmp_path, ros_env):
+    """The recorder, started by hand with a params file naming a parameter it does not have."""
+    params = tmp_path / "recorder.yaml"
+    params.write_text(f"recorder:\n  ros__parameters:\n    output: {tmp_path / 'x.mcap'}\n"
+                      "    ready_timout: 5.0\n")
+    proc = subprocess.run([sys.executable, "-m", "cr_control.recording.recorder", "--ros-args",
+                           "--params-file", str(params)], env=ros_env, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode != 0
+    assert "ready_timout (did you mean ready_timeout?)" in proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "x.mcap").exists()

@@ -111,6 +111,7 @@ from std_msgs.msg import Bool
 
 from cr_control.core import topics
 from cr_control.nodes.qos import READY_QOS
+from cr_control.nodes.ros_parameters import refuse_undeclared
 
 DEFAULT_TOPICS = [
     topics.JOINT_STATES,
@@ -701,6 +702,7 @@ class Recorder(Node):
 
         self.declare_parameter("compression", "zstd", ParameterDescriptor(
             description=f"Chunk compression: {', '.join(COMPRESSIONS)}.", **read_only))
+        refuse_undeclared(self)   # a misspelt name in a params file: refused, named
         self.output = Path(self.get_parameter("output").value).expanduser()
         self.writer = McapBagWriter(self.output, compression=self.get_parameter("compression").value)
         # The subscriptions live on a second, hidden node that no executor spins: messages
