@@ -216,6 +216,11 @@ class PlantNode(Node):
 
         self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, PUBLISH_QOS)
         self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, PUBLISH_QOS)
+        sensor_fields = ["stamp", *self.plant.sensor_fields]
+        self.sensors_pub = (self.create_publisher(Float64MultiArray, topics.PLANT_SENSORS,
+                                                  PUBLISH_QOS) if len(sensor_fields) > 1 else None)
+        self._sensors_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
+                                                  sensor_fields)
         self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, PUBLISH_QOS)
         self.clock_pub = self.create_publisher(Clock, topics.CLOCK, PUBLISH_QOS) if self.lockstep else None
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
@@ -322,6 +327,9 @@ class PlantNode(Node):
             clock.sec, clock.nanosec = sec, nanosec
             self.clock_pub.publish(self._clock_msg)
         self.wrench_pub.publish(wrench)
+        if self.sensors_pub is not None:
+            self._sensors_msg.data = [sec + nanosec * 1e-9, *self.plant.sensors()]
+            self.sensors_pub.publish(self._sensors_msg)
         self.state_pub.publish(state)
         now = time.monotonic()
         key = sec * 1_000_000_000 + nanosec

@@ -134,3 +134,8 @@ NODE_STATUS_FIELDS = ["in_time_us", "out_time_us"]
 #: (RELIABLE, TRANSIENT_LOCAL, depth 1; published once at start): a controller node whose
 #: scheme commands the other kind refuses to drive the plant and exits (issue 9).
 PLANT_COMMAND_INTERFACE = "/plant/command_interface"
+
+#: A plant's extra measurements (``Plant.sensor_fields``, e.g. the closed chain's lambda):
+#: a labelled Float64MultiArray with the joint state's stamp first, published with every
+#: state by plants that have any.
+PLANT_SENSORS = "/plant/sensors"

@@ -121,7 +121,7 @@ DEFAULT_TOPICS = [
     topics.PLANT_TIMING,
     topics.PARAMETER_EVENTS,
 ]
-DEFAULT_OPTIONAL_TOPICS = [topics.CLOCK]
+DEFAULT_OPTIONAL_TOPICS = [topics.CLOCK, topics.PLANT_SENSORS]
 
 #: Reader history of the recorder's subscriptions. Deeper than the control loop's
 #: topics.QOS_DEPTH so that a chunk compression or a scheduling hiccup on a busy machine

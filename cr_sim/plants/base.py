@@ -90,6 +90,14 @@ class Plant(ABC):
     def time(self) -> float:
         """Simulation time (s)."""
 
+    #: Names of extra measurements a plant offers beyond the joint state and the wrench
+    #: (published by the plant node on topics.PLANT_SENSORS, labelled); none by default.
+    sensor_fields: tuple[str, ...] = ()
+
+    def sensors(self) -> list[float]:
+        """Values of ``sensor_fields`` now."""
+        return []
+
     def accept(self, command: np.ndarray) -> bool:
         """True if ``command`` has one finite value per joint (the plant never lets NaN in)."""
         return command.shape == (len(self.joint_names),) and bool(np.all(np.isfinite(command)))

@@ -208,6 +208,12 @@ class MovingObjectPlant(Plant):
         """[q, q'] (true, noise-free)."""
         return self._x.copy()
 
+    #: lambda itself (2.11-2.13), and the constraint drift (Baumgarte, 2.94).
+    sensor_fields = ("lambda", "phi", "phi_dot")
+
+    def sensors(self) -> list[float]:
+        return [float(self._lam[0]), float(self._phi[0]), float(self._phi[1])]
+
     @property
     def constraint_force(self) -> float:
         """lambda (N): the contact force along n_c on the end effector."""
