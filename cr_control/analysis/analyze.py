@@ -43,6 +43,7 @@ from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
 from cr_control.analysis import chapter2, chapter4, chapter5
+from cr_control.analysis.figures import save_figure as _save
 from cr_control.core import ros_yaml, topics
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -604,15 +605,6 @@ def _figure(rows: int, cols: int = 1, height: float = 2.4):
                  layout="constrained")
     axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
     return fig, axes
-
-
-def _save(fig: Any, path: Path, written: list[Path]) -> None:
-    for ax in fig.axes:
-        ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize="small", loc="best")
-    fig.savefig(path, dpi=110)
-    written.append(path)
 
 
 def _has(series: dict[str, np.ndarray], *names: str) -> bool:

@@ -28,6 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from cr_control.analysis.figures import column_figure
+from cr_control.analysis.figures import save_figure as save
+
 #: Status fields that mark a chapter 2 run.
 REQUIRED = ("lambda", "lambda_err", "x_o", "x_o_err", "x_co", "x_co_err", "e1_1", "e1_2",
             "tau_1", "tau_2", "tau_3")
@@ -216,21 +219,8 @@ def metrics_table(runs: Sequence[ObjectRun], spans: Sequence[tuple[float, float]
 
 # -- figures -----------------------------------------------------------------------------
 def figure(rows: int, height: float = 2.2, sharex: bool = True):
-    """A one-column figure of ``rows`` panels (lazy matplotlib import)."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(7.5, 0.8 + height * rows), layout="constrained")
-    return fig, fig.subplots(rows, 1, squeeze=False, sharex=sharex)[:, 0]
-
-
-def save(fig: Any, path: Path, written: list[Path]) -> None:
-    """Grid, legends and PNG at 110 dpi; appends the path to ``written``."""
-    for ax in fig.axes:
-        ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize="small", loc="best")
-    fig.savefig(path, dpi=110)
-    written.append(path)
+    """A one-column figure of ``rows`` panels."""
+    return column_figure(rows, height, sharex)
 
 
 def _figs(run: ObjectRun) -> tuple[str, str, str]:

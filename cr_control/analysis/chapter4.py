@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from cr_control.analysis.chapter2 import figure, save
+from cr_control.analysis.chapter2 import figure
+from cr_control.analysis.figures import save_figure as save
 
 BACKSTEPPING_NAMES = ("b3", "b2", "b1", "b0", "a4", "a3", "a2", "a1", "a0")
 MRAC_NAMES = ("r3p", "r2p", "r1p", "r0p", "s4", "s3", "s2", "s1", "s0",

@@ -21,6 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from cr_control.analysis.figures import column_figure
+from cr_control.analysis.figures import save_figure as _save
+
 #: Status fields that mark a chapter 5 run.
 REQUIRED = ("f_m", "gap", "d_m", "k_m", "e_x", "e_y", "r_x", "r_y")
 #: The tool counts as separated when it is farther than this outside the surface (m).
@@ -172,19 +175,7 @@ def metrics_table(rows: Sequence[tuple[str, dict[str, float]]]) -> str:
 
 # -- figures -----------------------------------------------------------------------------
 def _figure(rows: int, height: float = 2.3):
-    from matplotlib.figure import Figure  # lazy: no plotting cost without figures
-
-    fig = Figure(figsize=(7.5, 0.8 + height * rows), layout="constrained")
-    return fig, fig.subplots(rows, 1, squeeze=False, sharex=True)[:, 0]
-
-
-def _save(fig: Any, path: Path, written: list[Path]) -> None:
-    for ax in fig.axes:
-        ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize="small", loc="best")
-    fig.savefig(path, dpi=110)
-    written.append(path)
+    return column_figure(rows, height)
 
 
 def _mark_disturbance(ax: Any, run: ContactRun, label: bool = True) -> None:
