@@ -70,18 +70,13 @@ class AdaptiveImpedanceController(Controller):
         self.pack_gains()
         self.internal = impedance.initial_state(self.values)
         self.adaptation = ImpedanceAdaptation(self.internal)
-        n_status = len(self.status_fields) - 1
-        self._output = KernelOutput(self.n_joints, n_status)
-        self._extras_at = n_status - len(self.extra_status_fields)
+        self._output = KernelOutput(self)
+        self._extras_at = self._output.extras_at
 
     def pack_gains(self) -> None:
         """Copy the current parameter values into the packed gains the kernel reads."""
         REFERENCE.pack(self.values, self.GAINS.view(self.gains, "reference"))
         impedance.GAINS.pack(self.values, self.GAINS.view(self.gains, "impedance"))
-
-    def set_parameter(self, name, value) -> None:
-        super().set_parameter(name, value)
-        self.pack_gains()
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
         out = self._output.new()

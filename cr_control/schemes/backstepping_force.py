@@ -24,7 +24,7 @@ from numba import njit
 
 from cr_control.core.parameters import Param
 from cr_control.schemes import backstepping as bs
-from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, ControlOutput
+from cr_control.schemes.controller import Controller, ControlOutput
 from cr_control.schemes.task_space import KernelOutput, split_output
 
 SIZES = bs.Sizes(5, 2)
@@ -119,9 +119,7 @@ class BacksteppingForceController(Controller):
     PARAMETERS = PARAMETERS
     extra_status_fields = STATUS_EXTRA
 
-    @classmethod
-    def parameters(cls) -> list[Param]:
-        return [_JOINTS if p.name == "joint_names" else p for p in COMMON_PARAMETERS] + cls.PARAMETERS
+    JOINT_NAMES_PARAMETER = _JOINTS
 
     def __init__(self, values: dict):
         super().__init__(values)
@@ -130,17 +128,12 @@ class BacksteppingForceController(Controller):
         self.pack_gains()
         self.internal = bs.initial_state(SIZES, self.values["theta_hat_0"], self.values["d_hat_0"])
         self._started = False
-        n_status = len(self.status_fields) - 1
-        self._output = KernelOutput(1, n_status)
-        self._extras_at = n_status - len(self.extra_status_fields)
+        self._output = KernelOutput(self)
+        self._extras_at = self._output.extras_at
 
     def pack_gains(self) -> None:
         v = self.values
         self.design.set_gains(v["h"], [0.0, 0.0], v["lambda"], v["Gamma"], v["gamma"])
-
-    def set_parameter(self, name, value) -> None:
-        super().set_parameter(name, value)
-        self.pack_gains()
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
         if not self._started:

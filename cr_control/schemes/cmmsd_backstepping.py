@@ -26,7 +26,7 @@ from numba import njit
 
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.schemes import backstepping as bs
-from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, ControlOutput
+from cr_control.schemes.controller import Controller, ControlOutput
 from cr_control.schemes.task_space import KernelOutput, split_output
 
 _JOINTS = Param("joint_names", ["q1", "q2"], "The chain's joints q1..qN in order (N = their "
@@ -108,9 +108,7 @@ class CMMSDBacksteppingController(Controller):
     PARAMETERS = PARAMETERS
     extra_status_fields = ["u", "d_hat", "theta_hat_norm", "z_1"]
 
-    @classmethod
-    def parameters(cls) -> list[Param]:
-        return [_JOINTS if p.name == "joint_names" else p for p in COMMON_PARAMETERS] + cls.PARAMETERS
+    JOINT_NAMES_PARAMETER = _JOINTS
 
     def __init__(self, values: dict):
         super().__init__(values)
@@ -128,9 +126,8 @@ class CMMSDBacksteppingController(Controller):
         self.design = bs.Backstepping(self.sizes)
         self.pack_gains()
         self.internal = bs.initial_state(self.sizes, theta0, d0)
-        n_status = len(self.status_fields) - 1
-        self._output = KernelOutput(self.n_joints, n_status)
-        self._extras_at = n_status - len(self.extra_status_fields)
+        self._output = KernelOutput(self)
+        self._extras_at = self._output.extras_at
 
     def pack_gains(self) -> None:
         v, s = self.values, self.sizes
@@ -140,10 +137,6 @@ class CMMSDBacksteppingController(Controller):
         d[0] = d[-1] = 0.0
         lam = bs.observer_coefficients(np.full(s.n, -v["observer_pole"]))
         self.design.set_gains(c, d, lam, np.full(s.p, v["Gamma"]), v["gamma"])
-
-    def set_parameter(self, name, value) -> None:
-        super().set_parameter(name, value)
-        self.pack_gains()
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
         q1 = float(q[0])                  # the only measurement the scheme reads (appendix C)

@@ -108,14 +108,27 @@ class Controller(ABC):
         self._warned_at = -math.inf
         self._unwarned = 0
 
+    #: The scheme's own ``joint_names`` parameter (its plant's joints as the default), in
+    #: place of the common one (the 2-link arm's); None keeps the common one.
+    JOINT_NAMES_PARAMETER: Param | None = None
+
     @classmethod
     def parameters(cls) -> list[Param]:
         """Every parameter of this scheme: common ones first."""
-        return COMMON_PARAMETERS + cls.PARAMETERS
+        own = cls.JOINT_NAMES_PARAMETER
+        common = COMMON_PARAMETERS if own is None else [
+            own if p.name == "joint_names" else p for p in COMMON_PARAMETERS]
+        return common + cls.PARAMETERS
 
     def set_parameter(self, name: str, value: Any) -> None:
         """Apply an already validated value; it is used from the next cycle on."""
         self.values[name] = value
+        self.pack_gains()
+
+    def pack_gains(self) -> None:
+        """Copy the parameter values into whatever the compiled law reads (packed gains);
+        called on every accepted change. Nothing to do for a law that reads ``values``."""
+        return
 
     @abstractmethod
     def compute(self, t: float, dt: float, q: np.ndarray, v: np.ndarray,

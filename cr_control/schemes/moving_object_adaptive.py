@@ -24,7 +24,8 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.schemes import moving_object_model as mo
-from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, ControlOutput
+from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.task_space import KernelOutput
 
 ESTIMATE_FIELDS = [f"P_hat_{i + 1}" for i in range(7)]
 
@@ -67,12 +68,6 @@ def moving_object_adaptive_cycle(gains, state, t, dt, q, v, force, out):
     st[_EXTRAS:_EXTRAS + 7] = P_hat
 
 
-def three_joint_common() -> list[Param]:
-    """COMMON_PARAMETERS with the chapter 2 joints as the default joint_names."""
-    return [Param(p.name, mo.JOINT_NAMES, p.description, p.kind, p.size, p.read_only, p.choices)
-            if p.name == "joint_names" else p for p in COMMON_PARAMETERS]
-
-
 class MovingObjectAdaptiveController(Controller):
     """Model-based adaptive control (2.27, 2.35) with the section 2.4 gains."""
 
@@ -87,9 +82,7 @@ class MovingObjectAdaptiveController(Controller):
     extra_status_fields = mo.STATUS + ESTIMATE_FIELDS
     command_status_fields = ["tau_1", "tau_2", "tau_3"]
 
-    @classmethod
-    def parameters(cls) -> list[Param]:
-        return three_joint_common() + cls.PARAMETERS
+    JOINT_NAMES_PARAMETER = mo.JOINT_NAMES_PARAMETER
 
     def __init__(self, values: dict):
         super().__init__(values)
@@ -98,15 +91,11 @@ class MovingObjectAdaptiveController(Controller):
         self.gains = np.zeros(GAINS.size)
         self.pack_gains()
         self.internal = np.concatenate([[0.0], np.asarray(self.values["P_hat_0"], dtype=float)])
-        self._size = 3 + mo.N_REFERENCE + len(self.status_fields) - 1
+        self._output = KernelOutput(self)
 
     def pack_gains(self) -> None:
         mo.pack_common(self.values, GAINS.view(self.gains, "common"))
         GAINS.view(self.gains, "Gamma")[...] = self.values["Gamma"]
-
-    def set_parameter(self, name, value) -> None:
-        super().set_parameter(name, value)
-        self.pack_gains()
 
     @property
     def estimates(self) -> np.ndarray:
@@ -114,6 +103,6 @@ class MovingObjectAdaptiveController(Controller):
         return self.internal[1:8].copy()
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
-        out = np.empty(self._size)
+        out = self._output.new()
         moving_object_adaptive_cycle(self.gains, self.internal, t, dt, q, v, force, out)
-        return ControlOutput(out[:3], out[3:3 + mo.N_REFERENCE], out[3 + mo.N_REFERENCE:])
+        return self._output.views(out)

@@ -30,6 +30,7 @@ derivatives exactly: q_d' = J_1^-1 r_c', q_d'' = J_1^-1 (r_c'' - J_1' q_d').
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -38,6 +39,7 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.core.topics import REFERENCE_FIELDS
+from cr_control.schemes.controller import COMMON_PARAMETERS
 
 #: The true P of section 2.4 with the corrected geometry (DESIGN.md).
 TRUE_P = np.array([0.6135, 0.0045, 0.30225, 0.441, 0.147, 0.06, 0.06])
@@ -45,6 +47,9 @@ TRUE_P = np.array([0.6135, 0.0045, 0.30225, 0.441, 0.147, 0.06, 0.06])
 PRINTED_P = np.array([0.6, 0.04, 0.3, 0.44, 0.15, 0.06, 0.06])
 
 JOINT_NAMES = ["joint1", "joint2", "object_x"]
+#: The common joint_names parameter with the chapter 2 joints as its default.
+JOINT_NAMES_PARAMETER = next(dataclasses.replace(p, default=JOINT_NAMES)
+                             for p in COMMON_PARAMETERS if p.name == "joint_names")
 
 #: Kinematics, desired motion and the gains shared by both schemes.
 GEOMETRY_PARAMETERS = [

@@ -42,7 +42,7 @@ from cr_control.core.parameters import Param, ParameterError
 from cr_control.schemes import moving_object_model as mo
 from cr_control.schemes import rbf_network
 from cr_control.schemes.controller import Controller, ControlOutput
-from cr_control.schemes.moving_object_adaptive import three_joint_common
+from cr_control.schemes.task_space import KernelOutput
 
 NORM_FIELDS = ["M1_norm", "M1_hat_norm", "C1_norm", "C1_hat_norm", "G1_norm", "G1_hat_norm"]
 
@@ -150,9 +150,7 @@ class MovingObjectNNController(Controller):
     extra_status_fields = mo.STATUS + NORM_FIELDS
     command_status_fields = ["tau_1", "tau_2", "tau_3"]
 
-    @classmethod
-    def parameters(cls) -> list[Param]:
-        return three_joint_common() + cls.PARAMETERS
+    JOINT_NAMES_PARAMETER = mo.JOINT_NAMES_PARAMETER
 
     def __init__(self, values: dict):
         super().__init__(values)
@@ -172,7 +170,7 @@ class MovingObjectNNController(Controller):
         self.gains = np.zeros(GAINS.size)
         self.pack_gains()
         self.internal = np.zeros(1 + 6 * n_q + 6 * n_z + 3 * n_q)
-        self._size = 3 + mo.N_REFERENCE + len(self.status_fields) - 1
+        self._output = KernelOutput(self)
 
     def pack_gains(self) -> None:
         v = self.values
@@ -183,10 +181,6 @@ class MovingObjectNNController(Controller):
                     "true_norms": 1.0 if v["publish_true_norms"] else 0.0,
                     "true_parameters": v["true_parameters"]}, self.gains)
 
-    def set_parameter(self, name, value) -> None:
-        super().set_parameter(name, value)
-        self.pack_gains()
-
     def weights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copies of theta (n_q x 6), alpha (n_z x 6), beta (n_q x 3)."""
         n_q, n_z = len(self.centres_q), len(self.centres_z)
@@ -196,7 +190,7 @@ class MovingObjectNNController(Controller):
                 w[6 * (n_q + n_z):].reshape(n_q, 3).copy())
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
-        out = np.empty(self._size)
+        out = self._output.new()
         moving_object_nn_cycle(self.gains, self.internal, self.centres_q, self.centres_z, t, dt,
                                q, v, force, out)
-        return ControlOutput(out[:3], out[3:3 + mo.N_REFERENCE], out[3 + mo.N_REFERENCE:])
+        return self._output.views(out)

@@ -28,7 +28,7 @@ from numba import njit
 from cr_control.core.parameters import Param
 from cr_control.schemes import diophantine
 from cr_control.schemes.backstepping_force import _JOINTS, TRUE_THETA
-from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, ControlOutput
+from cr_control.schemes.controller import Controller, ControlOutput
 from cr_control.schemes.task_space import KernelOutput, split_output
 
 #: True theta_f (4.69) of case 1 for the section 4.3 design (the corrected solution).
@@ -184,9 +184,7 @@ class MRACForceController(Controller):
     PARAMETERS = PARAMETERS
     extra_status_fields = STATUS_EXTRA
 
-    @classmethod
-    def parameters(cls) -> list[Param]:
-        return [_JOINTS if p.name == "joint_names" else p for p in COMMON_PARAMETERS] + cls.PARAMETERS
+    JOINT_NAMES_PARAMETER = _JOINTS
 
     def __init__(self, values: dict):
         super().__init__(values)
@@ -197,9 +195,8 @@ class MRACForceController(Controller):
         self.internal[_B3] = self.values["b3_hat_0"]
         self._work = np.zeros((5, 6))
         self._phi, self._p1phi = np.zeros(14), np.zeros(14)
-        n_status = len(self.status_fields) - 1
-        self._output = KernelOutput(1, n_status)
-        self._extras_at = n_status - len(self.extra_status_fields)
+        self._output = KernelOutput(self)
+        self._extras_at = self._output.extras_at
 
     def pack_gains(self) -> None:
         v = self.values
@@ -210,10 +207,6 @@ class MRACForceController(Controller):
         g[_ZW2], g[_W2] = A_m[1], A_m[2]
         g[_O:_O + 4] = v["observer_polynomial"]
         g[_GF], g[_FD], g[_BUMP] = v["gamma_f"], v["f_d"], float(v["bumpless_start"])
-
-    def set_parameter(self, name, value) -> None:
-        super().set_parameter(name, value)
-        self.pack_gains()
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
         out = self._output.new()

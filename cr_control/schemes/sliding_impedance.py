@@ -205,9 +205,8 @@ class SlidingImpedanceController(Controller):
         self.internal = np.concatenate([impedance.initial_state(self.values),
                                         np.zeros(SLIDING_STATE.size), extra])
         self.adaptation = ImpedanceAdaptation(self.internal[:_IS])
-        n_status = len(self.status_fields) - 1
-        self._output = KernelOutput(self.n_joints, n_status)
-        self._extras_at = n_status - len(self.extra_status_fields)
+        self._output = KernelOutput(self)
+        self._extras_at = self._output.extras_at
 
     @property
     def z(self) -> np.ndarray:
@@ -225,10 +224,6 @@ class SlidingImpedanceController(Controller):
     def scheme_gain_values(self) -> dict:
         """Values of the scheme's own packed gains (default: its parameters by name)."""
         return self.values
-
-    def set_parameter(self, name, value) -> None:
-        super().set_parameter(name, value)
-        self.pack_gains()
 
 
 #: Where a sliding scheme's own gains and state begin in its packed vectors.

@@ -161,22 +161,13 @@ class UnidirectionalImpedanceController(Controller):
         self.layout = Layout(shared=GAINS.size, scheme=self.SCHEME_GAINS.size)
         self.gains = np.zeros(self.layout.size)
         self.pack_gains()
-        self._output = KernelOutput(self.n_joints, len(self.status_fields) - 1)
+        self._output = KernelOutput(self)
         self._kernel = type(self).kernel
-        # Load the compiled kernel now (1-2 s from numba's cache on a slow machine), not in
-        # the first control cycle; the law has no state, so this leaves no trace.
-        n = self.n_joints
-        self._kernel(self.task.chain, self.gains, 0.0, np.full(n, 0.5), np.zeros(n), np.zeros(3),
-                     self._output.new())
 
     def pack_gains(self) -> None:
         """Copy the current parameter values into the packed gains the kernel reads."""
         GAINS.pack(self.values, self.layout.view(self.gains, "shared"))
         self.SCHEME_GAINS.pack(self.values, self.layout.view(self.gains, "scheme"))
-
-    def set_parameter(self, name, value) -> None:
-        super().set_parameter(name, value)
-        self.pack_gains()
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
         out = self._output.new()
