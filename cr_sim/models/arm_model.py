@@ -136,16 +136,24 @@ class TwoLinkArm:
 
         The default branch (sin(theta2) < 0) is the one printed for ch. 6.
         """
-        d1, d2 = self.params.length
-        x, y = float(r[0]), float(r[1])
-        rr = x * x + y * y
-        c2 = (rr - d1 * d1 - d2 * d2) / (2 * d1 * d2)
-        if not -1.0 <= c2 <= 1.0:
-            raise ValueError(f"point {r} is out of reach")
-        s2 = math.copysign(math.sqrt(1.0 - c2 * c2), elbow_sign)
-        c1 = ((d1 + d2 * c2) * x + d2 * s2 * y) / rr
-        s1 = ((d1 + d2 * c2) * y - d2 * s2 * x) / rr
-        return np.array([math.atan2(s1, c1), math.atan2(s2, c2)])
+        return two_link_inverse_kinematics(self.params.length, (0.0, 0.0), r, elbow_sign)
+
+
+def two_link_inverse_kinematics(length, base, point, elbow_sign: float) -> np.ndarray:
+    """[theta1, theta2] putting the tool of a 2-link arm based at ``base`` at ``point`` with
+    sign(sin theta2) = elbow_sign: c1 = ((d1 + d2 c2) x + d2 s2 y)/r^2 with x, y relative to
+    the base and atan2 (2.95-2.100 as corrected in DESIGN.md; ch. 6.3). ValueError if out
+    of reach."""
+    d1, d2 = length
+    x, y = float(point[0]) - base[0], float(point[1]) - base[1]
+    rr = x * x + y * y
+    c2 = (rr - d1 * d1 - d2 * d2) / (2.0 * d1 * d2)
+    if not -1.0 <= c2 <= 1.0:
+        raise ValueError(f"point {list(point)} is out of reach")
+    s2 = math.copysign(math.sqrt(1.0 - c2 * c2), elbow_sign)
+    c1 = ((d1 + d2 * c2) * x + d2 * s2 * y) / rr
+    s1 = ((d1 + d2 * c2) * y - d2 * s2 * x) / rr
+    return np.array([math.atan2(s1, c1), math.atan2(s2, c2)])
 
 
 def closed_form_dynamics(

@@ -46,7 +46,7 @@ import pinocchio as pin
 
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.core.paths import config_file
-from cr_sim.models.arm_model import LinkParameters, build_model
+from cr_sim.models.arm_model import LinkParameters, build_model, two_link_inverse_kinematics
 from cr_sim.models.constrained_dynamics import (
     mechanism_dynamics_into,
     mechanism_rk4,
@@ -110,22 +110,6 @@ def build_moving_object_model(values: dict) -> pin.Model:
     return model
 
 
-def arm_inverse_kinematics(length, base, point, elbow_sign: float) -> np.ndarray:
-    """[theta1, theta2] putting the tool at ``point`` (world) with sign(sin theta2) = elbow_sign:
-    (2.95-2.100) as corrected in DESIGN.md (atan2, x and y as in c1 = ((d1 + d2 c2)(x - a)
-    + d2 s2 y)/r^2)."""
-    d1, d2 = length
-    x, y = point[0] - base[0], point[1] - base[1]
-    rr = x * x + y * y
-    c2 = (rr - d1 * d1 - d2 * d2) / (2.0 * d1 * d2)
-    if not -1.0 <= c2 <= 1.0:
-        raise ValueError(f"point {list(point)} is out of reach")
-    s2 = math.copysign(math.sqrt(1.0 - c2 * c2), elbow_sign)
-    c1 = ((d1 + d2 * c2) * x + d2 * s2 * y) / rr
-    s1 = ((d1 + d2 * c2) * y - d2 * s2 * x) / rr
-    return np.array([math.atan2(s1, c1), math.atan2(s2, c2)])
-
-
 class MovingObjectPlant(Plant):
     """The closed chain of fig. 2.3: arm + prismatic object axis + contact constraint."""
 
@@ -159,7 +143,7 @@ class MovingObjectPlant(Plant):
         x_o, x_co = values["initial_object_position"], values["initial_contact_position"]
         y_co = -self.normal[0] * x_co / self.normal[1]          # on the line n . r_co = 0
         try:
-            arm_q = arm_inverse_kinematics(values["link_length"], values["base_position"],
+            arm_q = two_link_inverse_kinematics(values["link_length"], values["base_position"],
                                            (x_o + x_co, b + y_co), values["elbow_sign"])
         except ValueError as exc:
             raise ParameterError(f"initial state: {exc}") from exc
