@@ -123,7 +123,7 @@ def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimit
     no rate limit either: the node warns at start (see :func:`unlimited_joints`).
     """
     limits = plant.joint_limits()
-    n = len(plant.joint_names)
+    n = len(plant.command_joints)
     if plant.command_interface == "position":
         return CommandLimiter(limits.lower, limits.upper, limits.velocity, period)
     given = list(settings["effort_limit"])
@@ -140,7 +140,7 @@ def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimit
 
 def unlimited_joints(plant: Plant, limiter: CommandLimiter) -> list[str]:
     """Joints whose commands the limiter does not bound."""
-    return [name for name, lo, hi in zip(plant.joint_names, limiter.lower, limiter.upper, strict=True)
+    return [name for name, lo, hi in zip(plant.command_joints, limiter.lower, limiter.upper, strict=True)
             if lo == -np.inf and hi == np.inf]
 
 
@@ -150,7 +150,7 @@ def initial_command(plant: Plant) -> np.ndarray:
     current positions for position plants (hold still) and zero efforts for effort plants.
     A realtime plant steps with it until a controller answers; zero positions would pull
     the ch. 4 end effector off the constraint."""
-    n = len(plant.joint_names)
+    n = len(plant.command_joints)
     held = getattr(plant, "held", None)
     if held is not None and np.shape(held) == (n,) and np.all(np.isfinite(held)):
         return np.array(held, dtype=float)
@@ -174,6 +174,7 @@ class PlantNode(Node):
         self.period = 1.0 / self.settings["rate_hz"]
         self.lockstep = self.settings["mode"] == "lockstep"
         self.joint_names = list(self.plant.joint_names)
+        self.command_names = list(self.plant.command_joints)
         self.plant.brake_damping = self.settings["brake_damping"]
         self.plant.brake_stiffness = self.settings["brake_stiffness"]
         self.limiter = command_limiter(self.plant, self.settings, self.period)
@@ -250,7 +251,9 @@ class PlantNode(Node):
         self.get_logger().info(
             f"scenario {scenario['scenario']} ({self.plant.command_interface} commands), "
             f"{self.settings['mode']} at {self.settings['rate_hz']:g} Hz, "
-            f"joints {self.joint_names}, command limits {self.limiter.lower}..{self.limiter.upper}, "
+            f"joints {self.joint_names}"
+            + ("" if self.command_names == self.joint_names else f" (commanded {self.command_names})")
+            + f", command limits {self.limiter.lower}..{self.limiter.upper}, "
             f"watchdog {self._watchdog}"
             + ("" if self._watchdog == "disabled" else f" after {self._missed_limit} missed cycles")
             + "; waiting for a controller")
@@ -354,8 +357,9 @@ class PlantNode(Node):
         """``values`` in our joint order if ``names`` are exactly our joints, else None."""
         key = tuple(names)
         if key != self._order_cache[0]:
-            ok = len(names) == len(self.joint_names) and set(names) == set(self.joint_names)
-            self._order_cache = (key, [names.index(n) for n in self.joint_names] if ok else None)
+            ours = self.command_names
+            ok = len(names) == len(ours) and set(names) == set(ours)
+            self._order_cache = (key, [names.index(n) for n in ours] if ok else None)
         order = self._order_cache[1]
         if order is None or len(values) != len(names):
             return None
@@ -379,12 +383,13 @@ class PlantNode(Node):
 
     def _on_command(self, msg: JointState) -> None:
         values = msg.position if self._position_interface else msg.effort
-        if msg.name != self.joint_names or len(values) != len(self.joint_names):
+        if msg.name != self.command_names or len(values) != len(self.command_names):
             values = self._reorder(msg.name, values)
             if values is None:
                 self._refuse(self._wrong_field(msg) or
                              f"it names {list(msg.name)} with {len(msg.effort)} efforts and "
-                             f"{len(msg.position)} positions; the plant's joints are {self.joint_names}")
+                             f"{len(msg.position)} positions; the plant's commanded joints are "
+                             f"{self.command_names}")
                 return
         limited = self.limiter.limit(values, self._command_list)
         if limited is None:

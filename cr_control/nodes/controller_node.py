@@ -100,7 +100,8 @@ class ControllerNode(Node):
         self.controller.log_warning = self.get_logger().warn   # Controller rate-limits its own
         self.add_on_set_parameters_callback(self._check_counts)
         police_changes(self, specs, self._apply)
-        self.joint_names = list(self.controller.values["joint_names"])
+        self.joint_names = list(self.controller.values["joint_names"])        # commanded
+        self.state_joint_names = list(self.controller.state_joint_names)      # read
         n = len(self.joint_names)
         self._diagnostics_every = values["diagnostics_every"]
         self._cycle = 0
@@ -148,6 +149,11 @@ class ControllerNode(Node):
         self._refusal_timer = self.create_timer(0.05, quiet_on_shutdown(self, self._refuse_when_ready),
                                                 autostart=False)
         self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, CONTROL_QOS)
+        self._sensor_fields = tuple(self.controller.plant_sensor_fields)
+        self._sensor_cache: tuple[str, list[int] | None] = ("", None)
+        if self._sensor_fields:
+            self.create_subscription(Float64MultiArray, topics.PLANT_SENSORS,
+                                     self._on_plant_sensors, CONTROL_QOS)
         self.create_subscription(JointState, topics.JOINT_STATES,
                                  quiet_on_shutdown(self, self._on_joint_state), CONTROL_QOS)
         self.get_logger().info(
@@ -219,17 +225,34 @@ class ControllerNode(Node):
         f = msg.wrench.force
         self.force[:] = (f.x, f.y, f.z)
 
+    def _on_plant_sensors(self, msg: Float64MultiArray) -> None:
+        """The plant's extra measurements the law reads (``plant_sensor_fields``), found by
+        label; published just before the joint state they belong to."""
+        label = msg.layout.dim[0].label if msg.layout.dim else ""
+        if label != self._sensor_cache[0]:
+            fields = topics.fields_of(label)
+            missing = [f for f in self._sensor_fields if f not in fields]
+            index = None if missing else [fields.index(f) for f in self._sensor_fields]
+            if missing:
+                self.get_logger().error(f"{topics.PLANT_SENSORS} lacks {missing} (it has "
+                                        f"{fields[1:]}): {self.scheme} reads them as NaN")
+            self._sensor_cache = (label, index)
+        index = self._sensor_cache[1]
+        data = msg.data
+        if index is not None and len(data) > max(index):
+            self.controller.plant_sensors[:] = [data[i] for i in index]
+
     def _joint_order(self, names: list[str]) -> np.ndarray | None:
-        """Indices of our joints in a JointState's name list (None if any is missing)."""
+        """Indices of our state joints in a JointState's name list (None if any is missing)."""
         key = tuple(names)
         if key != self._index_cache[0]:
             try:
-                order = np.array([names.index(n) for n in self.joint_names])
+                order = np.array([names.index(n) for n in self.state_joint_names])
             except ValueError:
                 order = None
             self._index_cache = (key, order)
         if self._index_cache[1] is None:
-            self.get_logger().error(f"joint state lacks some of {self.joint_names}: {names}",
+            self.get_logger().error(f"joint state lacks some of {self.state_joint_names}: {names}",
                                     throttle_duration_sec=5.0)
         return self._index_cache[1]
 
@@ -241,7 +264,7 @@ class ControllerNode(Node):
             return np.empty(0), np.empty(0)
         position = np.frombuffer(position, dtype=np.float64)    # rclpy gives array.array: no copy
         velocity = np.frombuffer(velocity, dtype=np.float64)
-        if names == self.joint_names:
+        if names == self.state_joint_names:
             return position, velocity
         order = self._joint_order(names)
         if order is None:

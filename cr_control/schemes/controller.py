@@ -86,10 +86,22 @@ class Controller(ABC):
     extra_status_fields: list[str] = []
     #: Status fields that report the command (overwritten with the clipped command).
     command_status_fields: list[str] | None = None
+    #: Fields of the plant's extra measurements (topics.PLANT_SENSORS, labelled) the law
+    #: reads, e.g. motor accelerations (assumption 6.3). Before every step the node (or the
+    #: offline loop) writes the values measured with the state into ``plant_sensors``, in
+    #: this order; NaN where the plant did not send one for that state.
+    plant_sensor_fields: tuple[str, ...] = ()
 
     def __init__(self, values: dict[str, Any]):
         self.values = dict(values)
         self.n_joints = len(self.values["joint_names"])
+        #: Joints whose states the law reads, in the order of q and q' given to compute():
+        #: the ``state_joint_names`` parameter where a scheme has one (flexible joints: link
+        #: and motor joints), else the commanded joints.
+        self.state_joint_names = list(self.values.get("state_joint_names")
+                                      or self.values["joint_names"])
+        self.n_state = len(self.state_joint_names)
+        self.plant_sensors = np.full(len(self.plant_sensor_fields), np.nan)
         self.status_fields = STATUS_FIELDS + list(self.extra_status_fields)
         self._i_compute = self.status_fields.index("compute_time_us") - 1
         self._i_held = self.status_fields.index("held") - 1
@@ -139,8 +151,11 @@ class Controller(ABC):
         """Run the law once on a throw-away state so the first real cycle does not pay for
         loading (or compiling) its compiled kernels; ``internal`` is restored afterwards."""
         saved = None if self.internal is None else self.internal.copy()
-        n = self.n_joints
+        n = self.n_state
+        saved_sensors = self.plant_sensors.copy()
+        self.plant_sensors[:] = 0.0
         self.compute(0.0, 1e-3, np.full(n, 0.3), np.zeros(n), np.zeros(3))
+        self.plant_sensors[:] = saved_sensors
         if saved is not None:
             np.copyto(self.internal, saved)
 
@@ -157,7 +172,7 @@ class Controller(ABC):
         clipped command.
         """
         start = time.perf_counter()
-        n = self.n_joints
+        n = self.n_state
         values = self.values
         out = None
         reason = ""

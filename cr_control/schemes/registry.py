@@ -45,6 +45,17 @@ def make_controller(scheme: str, overrides: dict[str, Any] | None = None) -> Con
     return cls(resolve(cls.parameters(), overrides))
 
 
+#: Plant parameters a scheme's thesis runs set beyond the scenario's defaults (applied by
+#: cr_session and the offline loop before any user override).
+PLANT_OVERRIDES: dict[str, dict[str, Any]] = {}
+
+
+def default_plant_overrides(scheme: str) -> dict[str, Any]:
+    """The plant parameters the thesis runs ``scheme`` with (beyond the scenario defaults)."""
+    controller_class(scheme)
+    return dict(PLANT_OVERRIDES.get(scheme, {}))
+
+
 def default_scenario(scheme: str) -> str:
     """The plant scenario the thesis runs ``scheme`` on."""
     controller_class(scheme)

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from cr_control.schemes.controller import Controller
-from cr_control.schemes.registry import default_scenario, make_controller
+from cr_control.schemes.registry import default_plant_overrides, default_scenario, make_controller
 from cr_sim.plants.base import Plant
 from cr_sim.plants.registry import make_plant
 
@@ -42,14 +42,29 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
     """Step ``plant`` and ``controller`` for ``duration`` s at ``period``."""
     steps = int(round(duration / period))
     n = len(plant.joint_names)
+    n_command = len(plant.command_joints)
+    if controller.n_state != n:
+        raise ValueError(f"{controller.scheme} reads {controller.n_state} joints "
+                         f"{controller.state_joint_names}, the plant gives {list(plant.joint_names)}")
+    sensor_index = None
+    if controller.plant_sensor_fields:
+        fields = list(plant.sensor_fields)
+        missing = [f for f in controller.plant_sensor_fields if f not in fields]
+        if missing:
+            raise ValueError(f"{controller.scheme} reads plant sensors {missing}; the plant "
+                             f"offers {fields}")
+        sensor_index = [fields.index(f) for f in controller.plant_sensor_fields]
     rows = {
         "time": np.empty(steps), "position": np.empty((steps, n)), "velocity": np.empty((steps, n)),
-        "force": np.empty((steps, 3)), "command": np.empty((steps, n)),
+        "force": np.empty((steps, 3)), "command": np.empty((steps, n_command)),
         "reference": np.empty((steps, len(controller.reference_fields) - 1)),
         "status": np.empty((steps, len(controller.status_fields) - 1)),
     }
     for k in range(steps):
         m = plant.measurement()
+        if sensor_index is not None:
+            sensors = plant.sensors()
+            controller.plant_sensors[:] = [sensors[i] for i in sensor_index]
         out = controller.step(m.time, m.position, m.velocity, m.force)
         plant.step(out.command, period)
         rows["time"][k] = m.time
@@ -66,5 +81,6 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
 def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
                plant_overrides: dict[str, Any] | None = None, period: float = 1e-3) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides."""
-    plant = make_plant(default_scenario(scheme), plant_overrides)
+    plant = make_plant(default_scenario(scheme),
+                       {**default_plant_overrides(scheme), **(plant_overrides or {})})
     return run(make_controller(scheme, controller_overrides), plant, duration, period)

@@ -39,7 +39,12 @@ from cr_control.core.ros_env import (
     domain_id_arg,
     isolated_env,
 )
-from cr_control.schemes.registry import SCHEMES, controller_class, default_scenario
+from cr_control.schemes.registry import (
+    SCHEMES,
+    controller_class,
+    default_plant_overrides,
+    default_scenario,
+)
 
 STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 15.0
@@ -161,6 +166,7 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
     scenario = default_scenario(cfg.scheme)
     params = _load_params_file(config_file(f"{cfg.scheme}.yaml"))
     params.update(_load_params_file(config_file(f"plant_{scenario}.yaml")))
+    params["plant"].update(default_plant_overrides(cfg.scheme))
     params["plant"].update(scenario=scenario, mode=cfg.mode, duration=float(cfg.duration),
                            wait_for_recorder=cfg.record)
     if cfg.mode == "realtime":

@@ -66,8 +66,16 @@ def take_command(held, command):
 class Plant(ABC):
     """A simulated robot and its environment, stepped with a held command."""
 
-    #: Names of the joints, in the order of every vector the plant takes or gives.
+    #: Names of the joints, in the order of every state vector the plant gives.
     joint_names: tuple[str, ...]
+    #: Names of the commanded joints, in the order of the command :meth:`step` takes; None:
+    #: every joint of ``joint_names`` (flexible-joint plants command only their motors).
+    command_joint_names: tuple[str, ...] | None = None
+
+    @property
+    def command_joints(self) -> tuple[str, ...]:
+        """The commanded joints (``command_joint_names``, else ``joint_names``)."""
+        return tuple(self.command_joint_names or self.joint_names)
     #: "effort" (torque-commanded) or "position" (command-displacement plants, ch. 4).
     command_interface: str = "effort"
     #: Safe stop (brakes): viscous damping K_d (N m s/rad) of tau = G(q) - K_d q' - K_p (q - q_stop).
@@ -99,18 +107,18 @@ class Plant(ABC):
         return []
 
     def accept(self, command: np.ndarray) -> bool:
-        """True if ``command`` has one finite value per joint (the plant never lets NaN in)."""
-        return command.shape == (len(self.joint_names),) and bool(np.all(np.isfinite(command)))
+        """True if ``command`` has one finite value per commanded joint (never NaN in)."""
+        return command.shape == (len(self.command_joints),) and bool(np.all(np.isfinite(command)))
 
     def joint_limits(self) -> JointLimits:
-        """Limits of the joints: from the Pinocchio model (built from the URDF) where the
-        plant has one as ``self.arm.model``, else none (override for other plants)."""
+        """Limits of the commanded joints: from the Pinocchio model (built from the URDF)
+        where the plant has one as ``self.arm.model``, else none (override for other plants)."""
         model = getattr(getattr(self, "arm", None), "model", None)
-        n = len(self.joint_names)
+        n = len(self.command_joints)
         if model is None:
             return JointLimits.unlimited(n)
         try:
-            idx = [model.joints[model.getJointId(name)].idx_v for name in self.joint_names]
+            idx = [model.joints[model.getJointId(name)].idx_v for name in self.command_joints]
         except (IndexError, AttributeError):
             return JointLimits.unlimited(n)
         pick = lambda values: np.array([float(values[i]) for i in idx])  # noqa: E731
