@@ -151,6 +151,7 @@ class ControllerNode(Node):
         self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, CONTROL_QOS)
         self._sensor_fields = tuple(self.controller.plant_sensor_fields)
         self._sensor_cache: tuple[str, list[int] | None] = ("", None)
+        self._sensors_seen = not self._sensor_fields
         if self._sensor_fields:
             self.create_subscription(Float64MultiArray, topics.PLANT_SENSORS,
                                      self._on_plant_sensors, CONTROL_QOS)
@@ -241,6 +242,7 @@ class ControllerNode(Node):
         data = msg.data
         if index is not None and len(data) > max(index):
             self.controller.plant_sensors[:] = [data[i] for i in index]
+            self._sensors_seen = True
 
     def _joint_order(self, names: list[str]) -> np.ndarray | None:
         """Indices of our state joints in a JointState's name list (None if any is missing)."""
@@ -282,6 +284,11 @@ class ControllerNode(Node):
             return
         self._last_stamp = stamp
         position, velocity = self._joint_arrays(msg)
+        if not self._sensors_seen:
+            self.get_logger().warn(
+                f"{self.scheme} reads {list(self._sensor_fields)} from {topics.PLANT_SENSORS} "
+                "but none has arrived: those inputs are NaN (the law holds its command, or "
+                "uses its fallback where it has one)", throttle_duration_sec=5.0)
         t = stamp[0] + stamp[1] * 1e-9
         compute_start = time.perf_counter()
         out = self.controller.step(t, position, velocity, self.force)
