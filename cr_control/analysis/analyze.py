@@ -42,7 +42,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
-from cr_control.analysis import chapter2, chapter4, chapter5
+from cr_control.analysis import chapter2, chapter4, chapter5, chapter6
 from cr_control.analysis.figures import save_figure as _save
 from cr_control.core import ros_yaml, topics
 
@@ -741,6 +741,7 @@ def plot_session(session: Session, out_dir: str | Path) -> list[Path]:
     written += chapter5.session_figures(session, out)   # figs. 5.3-5.9 for chapter 5 runs
     written += chapter2.session_figures(session, out)   # figs. 2.4-2.12 for chapter 2 runs
     written += chapter4.session_figures(session, out)   # figs. 4.2-4.11, appendix C
+    written += chapter6.session_figures(session, out)   # figs. 6.2-6.18 for chapter 6 runs
     return written
 
 
@@ -849,6 +850,7 @@ def compare(sessions: Sequence[Session], out_dir: str | Path) -> list[Path]:
     written += chapter5.compare_sessions(sessions, labels, out)   # chapter 5 runs: one table
     written += chapter2.compare_sessions(sessions, labels, out)   # chapter 2 runs: one table
     written += chapter4.compare_sessions(sessions, labels, out)   # chapter 4 / appendix C
+    written += chapter6.compare_sessions(sessions, labels, out)   # chapter 6 runs: one table
     return written
 
 
