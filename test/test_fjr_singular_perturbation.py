@@ -325,6 +325,11 @@ def test_gamma_1_not_above_gamma_2_refused():
         controller(gamma_1=2.0, gamma_2=2.0)
     c = controller()
     gains = c.gains.copy()
+    # what the node asks before rclpy stores a change (the old value stays in force)
+    assert "must exceed gamma_2" in c.check_parameter("gamma_2", 7.5)
+    assert "lemma 6.2.1" in c.check_parameter("k_0", 0.01)
+    assert c.check_parameter("gamma_2", 6.5) is None
+    assert c.values["gamma_2"] == 2.0 and np.array_equal(c.gains, gains)
     with pytest.raises(ValueError, match="gamma_1"):
         c.set_parameter("gamma_2", 7.5)
     assert c.values["gamma_2"] == 2.0 and np.array_equal(c.gains, gains)

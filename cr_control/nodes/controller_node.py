@@ -99,7 +99,7 @@ class ControllerNode(Node):
         self.controller.warm_up()   # load the compiled kernels now, not in the first cycle
         self.controller.log_warning = self.get_logger().warn   # Controller rate-limits its own
         self.add_on_set_parameters_callback(self._check_counts)
-        police_changes(self, specs, self._apply)
+        police_changes(self, specs, self._apply, self.controller.check_parameter)
         self.joint_names = list(self.controller.values["joint_names"])        # commanded
         self.state_joint_names = list(self.controller.state_joint_names)      # read
         n = len(self.joint_names)

@@ -125,7 +125,8 @@ def _description(param: Param) -> str:
     return text
 
 
-def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any], None]) -> None:
+def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any], None],
+                   check_change: Callable[[str, Any], str | None] | None = None) -> None:
     """Validate live changes of ``specs`` on ``node`` and hand accepted ones to ``apply``.
 
     Call it after declaring every parameter: it first refuses parameters given at start
@@ -136,8 +137,10 @@ def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any
     (what ``ros2 param set`` and ``cr_param set`` send) is handled parameter by
     parameter, each with its own result, so in a mixed request the valid values are
     applied and the refused ones keep their old value. The reason is in the service
-    response. ``apply`` runs after rclpy stored the new values, so a value is in force
-    from the next control cycle on.
+    response. ``check_change(name, value)`` (optional) refuses a value its spec allows but
+    the other current values do not (e.g. gamma_1 > gamma_2), returning the reason; each
+    value of a request is checked against the values in force. ``apply`` runs after rclpy
+    stored the new values, so a value is in force from the next control cycle on.
     """
     refuse_undeclared(node)
     by_name = {p.name: p for p in specs}
@@ -147,7 +150,10 @@ def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any
             spec = by_name.get(p.name)
             if spec is None:
                 continue
-            ok, reason, _ = validate(spec, p.value)
+            ok, reason, value = validate(spec, p.value)
+            if ok and check_change is not None:
+                reason = check_change(p.name, value)
+                ok = reason is None
             if not ok:
                 node.get_logger().warn(f"refused {p.name}: {reason}")
                 return SetParametersResult(successful=False, reason=reason)

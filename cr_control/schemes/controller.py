@@ -132,6 +132,21 @@ class Controller(ABC):
             own if p.name == "joint_names" else p for p in COMMON_PARAMETERS]
         return common + cls.PARAMETERS
 
+    def check_values(self, values: dict[str, Any]) -> None:
+        """Raise ValueError (one line, the reason) if ``values`` together are not allowed:
+        constraints between parameters that no single spec can express. Nothing by default."""
+        return
+
+    def check_parameter(self, name: str, value: Any) -> str | None:
+        """Why changing ``name`` to ``value`` is refused with the other values in force
+        (:meth:`check_values`), or None; the node asks before rclpy stores a change, so a
+        refused value never reaches the law and the old one stays in force."""
+        try:
+            self.check_values({**self.values, name: value})
+        except ValueError as exc:
+            return str(exc)
+        return None
+
     def set_parameter(self, name: str, value: Any) -> None:
         """Apply an already validated value; it is used from the next cycle on."""
         self.values[name] = value

@@ -454,10 +454,9 @@ class FJRSingularPerturbationController(Controller):
             "y_last": 0.0})
         self._output = KernelOutput(self)
 
-    def pack_gains(self) -> None:
-        """Pack the gains; refuse gamma_1 <= gamma_2 (theorem 6.2.2) and
-        k_0 <= ||Gamma_0^-1|| (lemma 6.2.1 needs gamma(0) >= 0)."""
-        values = self.values
+    def check_values(self, values: dict) -> None:
+        """Refuse gamma_1 <= gamma_2 (theorem 6.2.2) and k_0 <= ||Gamma_0^-1|| (lemma 6.2.1
+        needs gamma(0) >= 0)."""
         if not values["gamma_1"] > values["gamma_2"]:
             raise ValueError(f"gamma_1 ({values['gamma_1']:g}) must exceed gamma_2 "
                              f"({values['gamma_2']:g}) (theorem 6.2.2)")
@@ -465,6 +464,11 @@ class FJRSingularPerturbationController(Controller):
         if not values["k_0"] > gamma0_inv_norm:
             raise ValueError(f"k_0 ({values['k_0']:g}) must exceed ||Gamma_0^-1|| = "
                              f"{gamma0_inv_norm:g} (lemma 6.2.1)")
+
+    def pack_gains(self) -> None:
+        """Pack the gains (after :meth:`check_values`)."""
+        values = self.values
+        self.check_values(values)
         fjs.pack_common(values, GAINS.view(self.gains, "common"))
         GAINS.pack({"common": GAINS.view(self.gains, "common").copy(),
                     "K_s": values["joint_stiffness"], "J_m": values["motor_inertia"],
@@ -476,7 +480,7 @@ class FJRSingularPerturbationController(Controller):
 
     def set_parameter(self, name, value) -> None:
         """Apply a validated value; a refused combination (ValueError from pack_gains)
-        leaves the old value in force."""
+        leaves the old value in force (the node refuses it before, by check_parameter)."""
         old = self.values[name]
         try:
             super().set_parameter(name, value)
