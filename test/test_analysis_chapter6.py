@@ -74,7 +74,10 @@ def test_window_metrics_on_synthetic_data():
     assert len([line for line in table.splitlines() if line.startswith("| sp |")]) == 3
     assert "| 70.7 | 100 | 1.500 | 2.500 |" in rows[1]
     assert "0.1, 0.1 | — |" in rows[1]
-    assert "no divergence" in table
+    assert "no divergence" in table and "clip" not in table
+    run.max_effort = 1.0                                   # τ_m2 = −1 sits at the clip
+    assert "τ_m at the ±1 N m clip (max_effort) in 100.0 % of the cycles" in \
+        chapter6.metrics_table([run])
 
 
 def test_is_chapter6_on_both_field_sets():
@@ -249,3 +252,20 @@ def test_cli_refuses_bad_arguments(capsys, tmp_path):
     assert chapter6.main([str(tmp_path / "file")]) == 2
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 5 and all(line.startswith("chapter6: error: ") for line in err)
+
+
+def test_cli_writes_runs_overlays_and_table(monkeypatch, capsys, tmp_path):
+    _require(chapter6.ROBUST_SCHEME)
+    _require(chapter6.SP_SCHEME)
+    cases = [c for c in chapter6.CASES if c[0] in ("robust_ks10", "robust_ks50", "sp_no_slow")]
+    monkeypatch.setattr(chapter6, "CASES", cases)
+    assert chapter6.main([str(tmp_path), "0.3"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("done in ") == 3 and "no divergence" in out and "runs in" in out
+    assert (tmp_path / "robust_ks10" / "fig6_2_positions.png").exists()
+    assert (tmp_path / "robust_ks50" / "fig6_11_ks_inv_hat.png").exists()
+    assert (tmp_path / "sp_no_slow" / "fig6_18_torques.png").exists()
+    assert_png(tmp_path / "ch6_robust_ks.png")
+    assert not (tmp_path / "ch6_sp_slow_control.png").exists()      # one SP run only
+    md = (tmp_path / "ch6_comparison.md").read_text()
+    assert "| robust K_s = 50 (case 2) | 0–0.3 |" in md and md in out

@@ -95,6 +95,8 @@ class FlexRun:
     joint_stiffness: float | None = None
     #: The SP scheme's slow_control parameter where known.
     slow_control: bool | None = None
+    #: The controller's max_effort (N m: commands are clipped there) where known.
+    max_effort: float | None = None
 
     @property
     def q_l(self) -> np.ndarray:
@@ -148,6 +150,14 @@ def _slow(controller: dict[str, Any] | None) -> bool | None:
     return None if value is None else bool(value)
 
 
+def _max_effort(controller: dict[str, Any] | None) -> float | None:
+    value = (controller or {}).get("max_effort")
+    try:
+        return float(value) if value is not None else None
+    except (TypeError, ValueError):
+        return None
+
+
 def _build(label: str, t: np.ndarray, col: Callable[[str], np.ndarray], names: Any,
            q_ld: np.ndarray) -> FlexRun:
     kind = scheme_kind(names)
@@ -174,6 +184,7 @@ def from_offline(run: Any, label: str, plant: dict[str, Any] | None = None,
             if "q_ld_1" in run.reference_fields else np.full((len(run.time), 2), np.nan))
     out = _build(label, run.time - run.time[0], run.column, names, q_ld)
     out.joint_stiffness, out.slow_control = _stiffness(plant), _slow(controller)
+    out.max_effort = _max_effort(controller)
     return out
 
 
@@ -195,13 +206,30 @@ def from_session(session: Any) -> FlexRun:
     q_ld = np.column_stack([_on_stamps(session.reference, f"q_ld_{i}", stamps) for i in (1, 2)])
     out = _build(session.name, session.relative_time(stamps), s.__getitem__, s, q_ld)
     out.joint_stiffness = _stiffness(session.parameters.get("plant"))
-    out.slow_control = _slow(session.parameters.get(session.controller or "", {}))
+    controller = session.parameters.get(session.controller or "", {})
+    out.slow_control, out.max_effort = _slow(controller), _max_effort(controller)
     return out
 
 
 def _label_stiffness(label: str) -> float | None:
     m = re.search(r"K_?s\s*=\s*([0-9]+(?:\.[0-9]*)?)", label)
     return float(m.group(1)) if m else None
+
+
+def true_p(run: FlexRun) -> np.ndarray | None:
+    """What p_hat estimates for the section 6.3 links (flexible_joint_model.TRUE_P = p):
+    p itself (singular perturbation, K_s known), Lambda^-1 p = [p / k_s1; p / k_s2] (robust,
+    Property 6.5; only where the plant's K_s is known). None otherwise."""
+    from cr_control.schemes.flexible_joint_model import TRUE_P  # analysis -> schemes (one way)
+
+    p = run.p_hat()
+    if p is None:
+        return None
+    if run.kind == SP and p.shape[1] == len(TRUE_P):
+        return np.asarray(TRUE_P, dtype=float)
+    if run.kind == ROBUST and run.joint_stiffness and p.shape[1] == 2 * len(TRUE_P):
+        return np.concatenate([TRUE_P, TRUE_P]) / run.joint_stiffness
+    return None
 
 
 def thesis_case(run: FlexRun) -> str | None:
@@ -322,9 +350,16 @@ def run_summary(run: FlexRun, last: float = 5.0) -> dict[str, Any]:
         "lambda_err_rms_late_N": _rms((run.lam_d - run.lam)[late]),
         "phi_max_m": _max(np.abs(run.phi)),
     }
+    if run.max_effort:
+        clipped = np.abs(run.tau) >= run.max_effort * (1.0 - 1e-9)
+        out["clipped_fraction"] = float(np.mean(clipped.any(axis=1)))
     p = run.p_hat()
     if p is not None:
         out["p_hat_end"] = p[-1].tolist()
+        truth = true_p(run)
+        if truth is not None:
+            out["p_err_start"] = float(np.linalg.norm(p[0] - truth))
+            out["p_err_end"] = float(np.linalg.norm(p[-1] - truth))
     for name in ("ks_inv_hat_1", "ks_inv_hat_2", "gamma_inv_norm", "forgetting"):
         if name in run.extras:
             out[f"{name}_end"] = float(run.extras[name][-1])
@@ -393,8 +428,15 @@ def _summary_line(run: FlexRun) -> str:
              f"{_fmt(s['e_q_rms_late_rad'], '{:.3g}', 1e3)} mrad, λ err RMS "
              f"{_fmt(s['lambda_err_rms_late_N'], '{:.3g}')} N; max |Φ| "
              f"{_fmt(s['phi_max_m'], '{:.2g}')} m")
+    if s.get("clipped_fraction"):
+        text += (f"; τ_m at the ±{run.max_effort:g} N m clip (max_effort) in "
+                 f"{100.0 * s['clipped_fraction']:.1f} % of the cycles")
     if "p_hat_end" in s:
         text += "; p̂(end) = [" + ", ".join(_fmt(x, "{:.4g}") for x in s["p_hat_end"]) + "]"
+    if "p_err_end" in s:
+        text += (f", ‖p̂ − p‖ {_fmt(s['p_err_start'], '{:.3g}')} → "
+                 f"{_fmt(s['p_err_end'], '{:.3g}')}"
+                 + (" (p of the robust scheme: Λ⁻¹p)" if run.kind == ROBUST else ""))
     if "ks_inv_hat_1_end" in s:
         text += (f", k̂_s⁻¹(end) = [{_fmt(s['ks_inv_hat_1_end'], '{:.4g}')}, "
                  f"{_fmt(s['ks_inv_hat_2_end'], '{:.4g}')}]")
@@ -530,6 +572,7 @@ def plot_chapter6(run: FlexRun, out_dir: str | Path, case: str | None = AUTO) ->
     save(fig, out / _name(numbers, "torques", "torques"), written)
 
     p = run.p_hat()
+    truth = true_p(run)
     if run.kind == ROBUST:
         if p is not None:
             blocks = [(0, min(5, p.shape[1]))] + ([(5, p.shape[1])] if p.shape[1] > 5 else [])
@@ -537,7 +580,10 @@ def plot_chapter6(run: FlexRun, out_dir: str | Path, case: str | None = AUTO) ->
             for ax, (a, b), joint in zip(axes, blocks, (1, 2), strict=False):
                 for i in range(a, b):
                     ax.plot(t, p[:, i], color=f"C{i - a}", lw=1.0, label=rf"$\hat p_{{{i + 1}}}$")
-                ax.set_ylabel(rf"$\hat p$, block $p_{joint}$" + f"\n(joint {joint})")
+                    if truth is not None:
+                        ax.axhline(truth[i], color=f"C{i - a}", ls=":", lw=1.0)
+                ax.set_ylabel(rf"$\hat p$, block $p_{joint}$" + f"\n(joint {joint})"
+                              + (r" (dotted: $p/k_s$)" if truth is not None else ""))
             _mark(axes, div)
             axes[-1].set_xlabel("t [s]")
             fig.suptitle(_title(run, "parameter estimates p̂ (Property 6.5 blocks)", numbers,
@@ -567,7 +613,9 @@ def plot_chapter6(run: FlexRun, out_dir: str | Path, case: str | None = AUTO) ->
                 if panel == "p_hat":
                     for i in range(p.shape[1]):
                         ax.plot(t, p[:, i], color=f"C{i}", lw=1.0, label=rf"$\hat p_{{{i + 1}}}$")
-                    ax.set_ylabel(r"$\hat p$")
+                        if truth is not None:
+                            ax.axhline(truth[i], color=f"C{i}", ls=":", lw=1.0)
+                    ax.set_ylabel(r"$\hat p$" + (" (dotted: true p)" if truth is not None else ""))
                 elif panel == "gamma_inv_norm":
                     ax.plot(t, run.extras[panel], "C5", lw=1.0, label=r"$\|\Gamma^{-1}\|$")
                     ax.set_ylabel(r"$\|\Gamma^{-1}\|$")
