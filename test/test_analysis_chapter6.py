@@ -159,7 +159,7 @@ def _require(scheme: str) -> None:
     try:
         controller_class(scheme)
     except ValueError:
-        pytest.skip(f"scheme {scheme} is not registered yet (its module is being written)")
+        pytest.skip(f"scheme {scheme} is not registered (cr_control.schemes.registry)")
 
 
 @pytest.fixture(scope="module")

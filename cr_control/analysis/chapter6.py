@@ -97,6 +97,9 @@ class FlexRun:
     slow_control: bool | None = None
     #: The controller's max_effort (N m: commands are clipped there) where known.
     max_effort: float | None = None
+    #: The robust scheme's motor_acceleration parameter (q_m'' in tau_m: "measured" or
+    #: "filtered") where known.
+    motor_acceleration: str | None = None
 
     @property
     def q_l(self) -> np.ndarray:
@@ -185,6 +188,7 @@ def from_offline(run: Any, label: str, plant: dict[str, Any] | None = None,
     out = _build(label, run.time - run.time[0], run.column, names, q_ld)
     out.joint_stiffness, out.slow_control = _stiffness(plant), _slow(controller)
     out.max_effort = _max_effort(controller)
+    out.motor_acceleration = (controller or {}).get("motor_acceleration")
     return out
 
 
@@ -208,6 +212,7 @@ def from_session(session: Any) -> FlexRun:
     out.joint_stiffness = _stiffness(session.parameters.get("plant"))
     controller = session.parameters.get(session.controller or "", {})
     out.slow_control, out.max_effort = _slow(controller), _max_effort(controller)
+    out.motor_acceleration = controller.get("motor_acceleration")
     return out
 
 
@@ -660,15 +665,23 @@ def _plot_qddot_m(run: FlexRun, out: Path, div: Divergence | None) -> list[Path]
     for ax in axes:
         ax.set_xlabel("t [s]")
     _mark(axes[:2], div)
-    fig.suptitle(f"{run.label}: motor accelerations, measured vs filtered (used in τ_m, 6.58)"
+    used = (f"τ_m (6.58) uses the {run.motor_acceleration} one"
+            if run.motor_acceleration in ("measured", "filtered") else "either may feed τ_m (6.58)")
+    fig.suptitle(f"{run.label}: motor accelerations q̈_m, measured (plant sensor) vs filtered "
+                 f"(state-variable filter on q̇_m)\n({used})"
                  + (f"\n(red dotted: diverged at {div.time:.3f} s)" if div else ""))
     save(fig, out / "ch6_qddot_m_filter.png", written)
     return written
 
 
+def _tau_rms(run: FlexRun, j: int) -> np.ndarray:
+    return running_rms(run.time, np.nan_to_num(run.tau[:, j]))
+
+
 def overlay(runs: Sequence[FlexRun], path: Path, title: str) -> list[Path]:
-    """The runs overlaid in one figure: |e_q| running RMS, λ (with λ_d), τ_m1, τ_m2. A
-    diverged run is drawn up to its divergence (red dotted marks) and y limits come from the
+    """The runs overlaid in one figure: |e_q| running RMS, λ (with λ_d), running RMS of
+    τ_m1 and τ_m2 (the sampled boundary layer makes them chatter; peaks are in the table).
+    A diverged run is drawn up to its divergence (dotted mark) and y limits come from the
     runs that did not diverge."""
     written: list[Path] = []
     colours = [f"C{i}" for i in range(len(runs))]
@@ -677,18 +690,23 @@ def overlay(runs: Sequence[FlexRun], path: Path, title: str) -> list[Path]:
     fig, axes = column_figure(4, 1.9)
     _error_norm_panel(axes[0], runs, colours)
     axes[1].plot(runs[0].time, runs[0].lam_d, "k-", lw=1.8, alpha=0.45, label=r"$\lambda_d$")
+    panels = ((axes[1], r"$\lambda$ [N]", lambda r: r.lam),
+              (axes[2], r"$\tau_{m1}$ running RMS" + f"\n({RMS_WINDOW_S:g} s) [N m]",
+               lambda r: _tau_rms(r, 0)),
+              (axes[3], r"$\tau_{m2}$ running RMS" + f"\n({RMS_WINDOW_S:g} s) [N m]",
+               lambda r: _tau_rms(r, 1)))
     for run, colour, div in zip(runs, colours, divs, strict=True):
         keep = _before(run, div)
-        for ax, y in ((axes[1], run.lam), (axes[2], run.tau[:, 0]), (axes[3], run.tau[:, 1])):
-            ax.plot(run.time, np.where(keep, y, np.nan), color=colour, lw=1.0, label=run.label)
+        for ax, _, get in panels:
+            ax.plot(run.time, np.where(keep, get(run), np.nan), color=colour, lw=1.0,
+                    label=run.label)
         if div is not None:
             for ax in axes:
                 ax.axvline(div.time, color=colour, ls=":", lw=1.0)
-    for ax, ylabel, get in ((axes[1], r"$\lambda$ [N]", lambda r: r.lam),
-                            (axes[2], r"$\tau_{m1}$ [N m]", lambda r: r.tau[:, 0]),
-                            (axes[3], r"$\tau_{m2}$ [N m]", lambda r: r.tau[:, 1])):
+    for ax, ylabel, get in panels:
         ax.set_ylabel(ylabel)
-        robust_ylim(ax, [(r.time[_before(r)], get(r)[_before(r)]) for r in good])
+        robust_ylim(ax, [(r.time[_before(r)], get(r)[_before(r)]) for r in good],
+                    floor=[0.0] if ax is not axes[1] else [])
     axes[-1].set_xlabel("t [s]")
     diverged = [f"{r.label} at {d.time:.3f} s" for r, d in zip(runs, divs, strict=True) if d]
     fig.suptitle(title + ("\n(dotted: diverged — " + ", ".join(diverged) + "; drawn up to there)"
@@ -710,8 +728,7 @@ def compare_chapter6(runs: Sequence[FlexRun], out_dir: str | Path,
     if len(robust) > 1:
         written += overlay(robust, out / "ch6_robust_ks.png",
                            "Chapter 6: robust adaptive control (Theorem 6.2.1) for different K_s\n"
-                           f"(‖e_q‖: running RMS over {RMS_WINDOW_S:g} s; numbers in "
-                           "ch6_comparison.md)")
+                           "(cf. thesis figs. 6.2-6.4 vs 6.7-6.9; numbers in ch6_comparison.md)")
     if len(sp) > 1:
         written += overlay(sp, out / "ch6_sp_slow_control.png",
                            "Chapter 6: singular-perturbation control with vs without the slow "
@@ -748,7 +765,7 @@ CASES: list[tuple[str, str, str, dict[str, Any], dict[str, Any]]] = [
      {"joint_stiffness": [10.0, 10.0], **ROBUST_PLANT}),
     ("robust_ks50", "robust K_s = 50 (case 2)", ROBUST_SCHEME, {},
      {"joint_stiffness": [50.0, 50.0], **ROBUST_PLANT}),
-    ("robust_ks100", "robust K_s = 100 (diverges per the thesis)", ROBUST_SCHEME, {},
+    ("robust_ks100", "robust K_s = 100 (thesis: diverges)", ROBUST_SCHEME, {},
      {"joint_stiffness": [100.0, 100.0], **ROBUST_PLANT}),
     ("sp", "SP with τ_s", SP_SCHEME, {}, dict(SP_PLANT)),
     ("sp_no_slow", "SP without τ_s", SP_SCHEME, {"slow_control": False}, dict(SP_PLANT)),
