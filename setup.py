@@ -18,6 +18,8 @@ SCHEMES = [
     "backstepping_force",
     "mrac_force",
     "cmmsd_backstepping",
+    "fjr_robust_adaptive",
+    "fjr_singular_perturbation",
 ]
 
 setup(

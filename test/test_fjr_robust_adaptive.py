@@ -7,7 +7,7 @@ table); the bounds leave a margin of about 1.5-2x over what was measured. What t
 show (section 6.3.1 claims in brackets):
   * positions converge in every case [reproduced]; lambda - lambda_d stays bounded
     [reproduced]; estimates bounded [reproduced];
-  * with the measured q_m'' (assumption 6.3, the default) the torque chatters between the
+  * with the measured q_m'' (assumption 6.3; the default is the filtered one) the torque chatters between the
     +-max_effort clip (100 N m) every cycle from the start; without the clip it diverges
     (the term J_m_hat q_m'' feeds back the motor's own acceleration, see the scheme's
     docstring); the filtered q_m'' gives torques of a few N m and 4-6 times smaller
@@ -329,7 +329,7 @@ def _common_claims(m: dict, late_rms_bound: float, e_lam_bound: float):
 
 
 def test_case1_strong_flexibility():
-    """K_s = 10 I (case 1), thesis gains, measured q_m'' (the default): |e_q| RMS over
+    """K_s = 10 I (case 1), thesis gains, measured q_m'' (assumption 6.3): |e_q| RMS over
     15-20 s 4.1 mrad (162 mrad in the first second), |lambda - lambda_d| <= 0.44 N after
     1 s, estimates bounded; the torque sits at the +-100 N m clip (measured: 99.8 % of the
     cycles after 1 s)."""

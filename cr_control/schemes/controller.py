@@ -29,7 +29,8 @@ COMMON_PARAMETERS = [
     Param("joint_names", ["joint1", "joint2"], "Joints commanded, in command order.",
           "string_list", read_only=True),
     Param("max_effort", 100.0, "Commands are clipped to +-max_effort (N m, or m for position "
-          "commands); the thesis schemes stay well inside the default.", "positive"),
+          "commands); the thesis schemes stay inside the default, except fjr_robust_adaptive "
+          "with the measured q_m'' (its torque then sits at the clip).", "positive"),
     Param("forward_command_topic", "",
           "If set, also publish commands as Float64MultiArray here (ros2_control "
           "forward_command_controller, e.g. /effort_controller/commands).", "string",

@@ -51,11 +51,12 @@ Choices the thesis leaves open (parameters where they are values, documented):
     with int sigma updated by dt sigma_k it equals sigma_k + (z_k - z_k-1) / dt). A later
     dt = 0 (a repeated stamp) reuses the last s.
   * q_m'' (assumption 6.3), parameter ``motor_acceleration``:
-      - "measured" (default): the plant's q_m'' sensors (plant_sensor_fields). The
+      - "measured": the plant's q_m'' sensors (plant_sensor_fields). The
         flexible_joint_surface plant evaluates them at the state with the command held
         over the last period (J_m q_m'' = tau_{k-1} - K_s theta). Not finite (not yet
         received): the filtered estimate below is used instead.
-      - "filtered": a critically damped state-variable filter on q_m',
+      - "filtered" (default, because the measured one drives the torque to its clip:
+        below): a critically damped state-variable filter on q_m',
         x1'' + 2 w x1' + w^2 x1 = w^2 q_m' (w = ``motor_acceleration_bandwidth``), whose
         derivative state x2 = x1' estimates q_m''. It is discretised exactly (the input
         held over the period, taken at its end): with e = [x1 - u, x2],
@@ -303,10 +304,11 @@ class FJRRobustAdaptiveController(Controller):
         Param("ks_inv_hat_0", [0.125, 0.125], "Initial estimates k_s_inv_hat(0) of K_s^-1 "
               "(6.21) (rad/(N m)); the thesis gives none: 1 / K_s_hat = 0.125.", "vector", 2,
               read_only=True),
-        Param("motor_acceleration", "measured", "Source of q_m'' in (6.58-6.59) (assumption "
-              "6.3): 'measured' (the plant's joint1/2_motor_acceleration sensors; the filter "
-              "estimate while none has arrived) or 'filtered' (a critically damped "
-              "state-variable filter on q_m').", "choice", choices=MOTOR_ACCELERATION),
+        Param("motor_acceleration", "filtered", "Source of q_m'' in (6.58-6.59) (assumption "
+              "6.3): 'filtered' (a critically damped state-variable filter on q_m'; default) or "
+              "'measured' (the plant's joint1/2_motor_acceleration sensors, the filter "
+              "estimate while none has arrived; with the thesis gains its torque sits at the "
+              "+-max_effort clip, see the docstring).", "choice", choices=MOTOR_ACCELERATION),
         Param("motor_acceleration_bandwidth", 50.0, "Bandwidth w (rad/s) of the q_m'' filter "
               "w^2 s / (s + w)^2 on q_m' (runs in both modes, published as "
               "qddot_m_filtered_*).", "positive"),

@@ -9,6 +9,8 @@ from cr_control.schemes.adaptive_impedance import AdaptiveImpedanceController
 from cr_control.schemes.backstepping_force import BacksteppingForceController
 from cr_control.schemes.cmmsd_backstepping import CMMSDBacksteppingController
 from cr_control.schemes.controller import Controller
+from cr_control.schemes.fjr_robust_adaptive import FJRRobustAdaptiveController
+from cr_control.schemes.fjr_singular_perturbation import FJRSingularPerturbationController
 from cr_control.schemes.fuzzy_unidirectional import FuzzyUnidirectionalController
 from cr_control.schemes.impedance import ImpedanceController
 from cr_control.schemes.moving_object_adaptive import MovingObjectAdaptiveController
@@ -29,6 +31,8 @@ SCHEMES: dict[str, tuple[type[Controller], str]] = {
     "backstepping_force": (BacksteppingForceController, "dynamic_constraint"),
     "mrac_force": (MRACForceController, "dynamic_constraint"),
     "cmmsd_backstepping": (CMMSDBacksteppingController, "cmmsd"),
+    "fjr_robust_adaptive": (FJRRobustAdaptiveController, "flexible_joint_surface"),
+    "fjr_singular_perturbation": (FJRSingularPerturbationController, "flexible_joint_surface"),
 }
 
 
@@ -47,7 +51,10 @@ def make_controller(scheme: str, overrides: dict[str, Any] | None = None) -> Con
 
 #: Plant parameters a scheme's thesis runs set beyond the scenario's defaults (applied by
 #: cr_session and the offline loop before any user override).
-PLANT_OVERRIDES: dict[str, dict[str, Any]] = {}
+PLANT_OVERRIDES: dict[str, dict[str, Any]] = {
+    # section 6.3.2: stiff joints, known to the scheme (its joint_stiffness, motor_inertia)
+    "fjr_singular_perturbation": {"joint_stiffness": [300.0, 300.0], "motor_inertia": [1.0, 1.0]},
+}
 
 
 def default_plant_overrides(scheme: str) -> dict[str, Any]:

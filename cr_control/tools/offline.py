@@ -65,7 +65,11 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         if sensor_index is not None:
             sensors = plant.sensors()
             controller.plant_sensors[:] = [sensors[i] for i in sensor_index]
-        out = controller.step(m.time, m.position, m.velocity, m.force)
+        # the stamp as the controller node sees it (integer nanoseconds in the header):
+        # lockstep over ROS then reproduces this loop bit for bit, even where the closed
+        # loop amplifies round-off (fjr_robust_adaptive's boundary layer at 1 kHz)
+        sec, nanosec = divmod(round(m.time * 1e9), 1_000_000_000)
+        out = controller.step(sec + nanosec * 1e-9, m.position, m.velocity, m.force)
         plant.step(out.command, period)
         rows["time"][k] = m.time
         rows["position"][k] = m.position
