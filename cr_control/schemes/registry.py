@@ -50,8 +50,14 @@ def make_controller(scheme: str, overrides: dict[str, Any] | None = None) -> Con
 
 
 #: Plant parameters a scheme's thesis runs set beyond the scenario's defaults (applied by
-#: cr_session and the offline loop before any user override).
+#: cr_session before any user override; the offline loop takes the scenario's own ones,
+#: it has no plant node and so no command limiter).
 PLANT_OVERRIDES: dict[str, dict[str, Any]] = {
+    # The thesis gains at 1 kHz: the boundary layer (Delta = 0.002) moves the torque by
+    # several N m per cycle and the start asks ~70 N m within ms; the plant node's default
+    # torque-rate limit (libfranka's 1000 N m/s) turns that into divergence (lockstep and
+    # offline with the limiter: |e_q| ~ 3 rad; 20 000 N m/s is the least that holds).
+    "fjr_robust_adaptive": {"effort_rate_limit": 100000.0},
     # section 6.3.2: stiff joints, known to the scheme (its joint_stiffness, motor_inertia)
     "fjr_singular_perturbation": {"joint_stiffness": [300.0, 300.0], "motor_inertia": [1.0, 1.0]},
 }

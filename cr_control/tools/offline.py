@@ -14,7 +14,7 @@ import numpy as np
 from cr_control.schemes.controller import Controller
 from cr_control.schemes.registry import default_plant_overrides, default_scenario, make_controller
 from cr_sim.plants.base import Plant
-from cr_sim.plants.registry import make_plant
+from cr_sim.plants.registry import SCENARIOS, make_plant
 
 
 @dataclass
@@ -85,6 +85,8 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
 def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
                plant_overrides: dict[str, Any] | None = None, period: float = 1e-3) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides."""
-    plant = make_plant(default_scenario(scheme),
-                       {**default_plant_overrides(scheme), **(plant_overrides or {})})
+    scenario = default_scenario(scheme)
+    own = {p.name for p in SCENARIOS[scenario][0]}    # not the plant node's settings
+    thesis = {k: v for k, v in default_plant_overrides(scheme).items() if k in own}
+    plant = make_plant(scenario, {**thesis, **(plant_overrides or {})})
     return run(make_controller(scheme, controller_overrides), plant, duration, period)
