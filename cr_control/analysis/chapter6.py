@@ -777,13 +777,12 @@ def offline_run(scheme: str, duration: float = 20.0, controller: dict[str, Any] 
     """Run ``scheme`` offline on its thesis plant (with ``plant`` overrides) and return its
     FlexRun, K_s and slow_control taken from the resolved parameters."""
     from cr_control.core.parameters import resolve
-    from cr_control.schemes.registry import controller_class, default_plant_overrides
-    from cr_control.tools.offline import run_scheme
+    from cr_control.schemes.registry import controller_class
+    from cr_control.tools.offline import run_scheme, scheme_plant_overrides
     from cr_sim.plants import flexible_joint_surface
 
     result = run_scheme(scheme, duration, controller_overrides=controller, plant_overrides=plant)
-    plant_values = resolve(flexible_joint_surface.PARAMETERS,
-                           {**default_plant_overrides(scheme), **(plant or {})})
+    plant_values = resolve(flexible_joint_surface.PARAMETERS, scheme_plant_overrides(scheme, plant))
     controller_values = resolve(controller_class(scheme).parameters(), controller)
     return from_offline(result, label or scheme, plant_values, controller_values)
 

@@ -82,11 +82,18 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
                       status_fields=list(controller.status_fields))
 
 
+def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The plant parameters ``scheme``'s offline runs use: the thesis settings of the
+    registry that belong to the scenario (not the plant node's, such as command limits:
+    there is no node here), then ``overrides``."""
+    own = {p.name for p in SCENARIOS[default_scenario(scheme)][0]}
+    thesis = {k: v for k, v in default_plant_overrides(scheme).items() if k in own}
+    return {**thesis, **(overrides or {})}
+
+
 def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
                plant_overrides: dict[str, Any] | None = None, period: float = 1e-3) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides."""
     scenario = default_scenario(scheme)
-    own = {p.name for p in SCENARIOS[scenario][0]}    # not the plant node's settings
-    thesis = {k: v for k, v in default_plant_overrides(scheme).items() if k in own}
-    plant = make_plant(scenario, {**thesis, **(plant_overrides or {})})
+    plant = make_plant(scenario, scheme_plant_overrides(scheme, plant_overrides))
     return run(make_controller(scheme, controller_overrides), plant, duration, period)
