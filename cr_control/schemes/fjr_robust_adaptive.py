@@ -100,7 +100,7 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.schemes import flexible_joint_scheme as fjs
-from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.controller import ControlOutput
 from cr_control.schemes.flexible_joint_model import P_HAT_0, expanded_regressor_into
 from cr_control.schemes.task_space import KernelOutput
 
@@ -272,7 +272,7 @@ def fjr_robust_adaptive_cycle(gains, state, t, dt, q, v, force, qddot_measured, 
     st[k + 3], st[k + 4] = x2[0], x2[1]
 
 
-class FJRRobustAdaptiveController(Controller):
+class FJRRobustAdaptiveController(fjs.FlexibleJointController):
     """Robust adaptive control (theorem 6.2.1, 6.58) with the section 6.3.1 gains."""
 
     scheme = "fjr_robust_adaptive"
@@ -313,18 +313,11 @@ class FJRRobustAdaptiveController(Controller):
               "w^2 s / (s + w)^2 on q_m' (runs in both modes, published as "
               "qddot_m_filtered_*).", "positive"),
     ]
-    reference_fields = fjs.REFERENCE
     extra_status_fields = fjs.STATUS + OWN_STATUS
-    command_status_fields = ["tau_1", "tau_2"]
     plant_sensor_fields = ("joint1_motor_acceleration", "joint2_motor_acceleration")
-
-    JOINT_NAMES_PARAMETER = fjs.JOINT_NAMES_PARAMETER
 
     def __init__(self, values: dict):
         super().__init__(values)
-        if self.n_joints != 2 or self.n_state != 4:
-            raise ValueError(f"{self.scheme} commands 2 motors and reads 4 joints, got "
-                             f"{self.values['joint_names']} and {self.state_joint_names}")
         self.gains = np.zeros(GAINS.size)
         self.pack_gains()
         self.internal = STATE.pack({

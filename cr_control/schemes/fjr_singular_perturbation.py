@@ -116,7 +116,7 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.schemes import flexible_joint_scheme as fjs
-from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.controller import ControlOutput
 from cr_control.schemes.flexible_joint_model import (
     P_HAT_0,
     filtered_regressor_input_into,
@@ -400,7 +400,7 @@ def fjr_singular_perturbation_cycle(gains, state, t, dt, q, v, force, out):
     st[13], st[14] = e_m[0], e_m[1]
 
 
-class FJRSingularPerturbationController(Controller):
+class FJRSingularPerturbationController(fjs.FlexibleJointController):
     """Composite control (6.78) + slow adaptive control (6.102-6.106), section 6.3.2 gains."""
 
     scheme = "fjr_singular_perturbation"
@@ -435,17 +435,10 @@ class FJRSingularPerturbationController(Controller):
               "its adaptation (6.103-6.106); false: motor feedback only, p_hat held at "
               "p_hat_0 (figures 6.16-6.18).", "bool"),
     ]
-    reference_fields = fjs.REFERENCE
     extra_status_fields = fjs.STATUS + OWN_STATUS
-    command_status_fields = ["tau_1", "tau_2"]
-
-    JOINT_NAMES_PARAMETER = fjs.JOINT_NAMES_PARAMETER
 
     def __init__(self, values: dict):
         super().__init__(values)
-        if self.n_joints != 2 or self.n_state != 4:
-            raise ValueError(f"{self.scheme} commands 2 motors and reads 4 joints, got "
-                             f"{self.values['joint_names']} and {self.state_joint_names}")
         self.gains = np.zeros(GAINS.size)
         self.pack_gains()
         self.internal = STATE.pack({

@@ -34,7 +34,7 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
-from cr_control.schemes.controller import COMMON_PARAMETERS
+from cr_control.schemes.controller import COMMON_PARAMETERS, Controller
 from cr_control.schemes.flexible_joint_model import constraint_into, desired_motion_jets
 
 MOTOR_JOINTS = ["joint1_motor", "joint2_motor"]
@@ -77,6 +77,21 @@ PARAMETERS = [
     Param("path_phase", 0.0, "r_d: phi (rad).", "finite"),
     Param("lambda_d", 2.0, "Desired constraint force lambda_d (N) (section 6.3).", "finite"),
 ]
+
+
+class FlexibleJointController(Controller):
+    """Base of the chapter 6 schemes: reads the link and motor joints (``state_joint_names``),
+    commands the two motors, publishes REFERENCE and STATUS before its own fields."""
+
+    reference_fields = REFERENCE
+    command_status_fields = ["tau_1", "tau_2"]
+    JOINT_NAMES_PARAMETER = JOINT_NAMES_PARAMETER
+
+    def __init__(self, values: dict):
+        super().__init__(values)
+        if self.n_joints != 2 or self.n_state != 4:
+            raise ValueError(f"{self.scheme} commands 2 motors and reads 4 joints, got "
+                             f"{self.values['joint_names']} and {self.state_joint_names}")
 
 
 def k_e_parameter(default: float) -> Param:
