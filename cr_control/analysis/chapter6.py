@@ -549,7 +549,8 @@ def plot_chapter6(run: FlexRun, out_dir: str | Path, case: str | None = AUTO) ->
     for ax, w, span in ((axes[0], slice(None), "whole run"), (axes[1], early, "first second")):
         ax.plot(t[w], run.lam_d[w], **DESIRED, label=r"$\lambda_d$ (desired)")
         ax.plot(t[w], run.lam[w], "C3--", lw=1.0, label=r"$\lambda$ (actual)")
-        ax.set_ylabel(rf"$\lambda$ [N] ({span})")
+        ax.set_ylabel(r"$\lambda$ [N]")
+        ax.set_title(span, fontsize="small", loc="left")
         ax.set_xlabel("t [s]")
     robust_ylim(axes[0], [(tk, run.lam[keep])], floor=[float(np.nanmax(run.lam_d))])
     _mark(axes, div)
@@ -562,7 +563,8 @@ def plot_chapter6(run: FlexRun, out_dir: str | Path, case: str | None = AUTO) ->
     for ax, w, span in ((axes[0], slice(None), "whole run"), (axes[1], early, "first second")):
         ax.plot(t[w], run.tau[w, 0], "C0-", lw=1.0, label=r"$\tau_{m1}$ (joint 1)")
         ax.plot(t[w], run.tau[w, 1], "C1--", lw=1.0, label=r"$\tau_{m2}$ (joint 2)")
-        ax.set_ylabel(rf"$\tau_m$ [N m] ({span})")
+        ax.set_ylabel(r"$\tau_m$ [N m]")
+        ax.set_title(span, fontsize="small", loc="left")
         ax.set_xlabel("t [s]")
     robust_ylim(axes[0], [(tk, run.tau[keep, 0]), (tk, run.tau[keep, 1])])
     if has_tau_s:
