@@ -85,6 +85,7 @@ from cr_control.schemes.jets import (
     jet_shift,
     jet_sin_cos,
     jet_sub,
+    jet_to_derivatives,
 )
 
 #: p of (6.119) with the corrected geometry (DESIGN.md).
@@ -329,12 +330,8 @@ def desired_motion_jets(t, centre, amplitude, omega, phase, link_length, elbow_s
     kx[0] += l1
     jet_atan2(ky, kx, beta)
     jet_sub(th1, beta, th1)
-    fact = 1.0
-    for k in range(n):
-        if k > 0:
-            fact *= k
-        out[k, 0] = th1[k] * fact
-        out[k, 1] = th2[k] * fact
+    jet_to_derivatives(th1, out[:, 0])
+    jet_to_derivatives(th2, out[:, 1])
 
 
 @njit(cache=True, error_model="numpy")
@@ -372,20 +369,14 @@ def regressor_jets_into(qjet, out):
     jet_mul(v1, v1, t)
     jet_mul(t, s2, t)
     jet_add(psi22, t, psi22)
-    fact = 1.0
-    for k in range(n):
-        if k > 0:
-            fact *= k
-        out[k, 0, 0] = a1[k] * fact
-        out[k, 0, 1] = psi12[k] * fact
-        out[k, 0, 2] = a2[k] * fact
-        out[k, 0, 3] = c1[k] * fact
-        out[k, 0, 4] = c12[k] * fact
-        out[k, 1, 0] = 0.0
-        out[k, 1, 1] = psi22[k] * fact
-        out[k, 1, 2] = (a1[k] + a2[k]) * fact
-        out[k, 1, 3] = 0.0
-        out[k, 1, 4] = c12[k] * fact
+    jet_add(a1, a2, u)                                  # Psi23 = a1 + a2
+    for col, jet in enumerate((a1, psi12, a2, c1, c12)):
+        jet_to_derivatives(jet, out[:, 0, col])
+    jet_to_derivatives(psi22, out[:, 1, 1])
+    jet_to_derivatives(u, out[:, 1, 2])
+    jet_to_derivatives(c12, out[:, 1, 4])
+    out[:, 1, 0] = 0.0
+    out[:, 1, 3] = 0.0
 
 
 @njit(cache=True, error_model="numpy")
@@ -405,11 +396,9 @@ def force_jets_into(qjet, link_length, normal, offset, lambda_d, out):
     s1, c1, s12, c12 = w[2], w[3], w[4], w[5]
     jet_sin_cos(q1, s1, c1)
     jet_sin_cos(q12, s12, c12)
-    fact = 1.0
+    f1, f2 = w[6], w[7]                                 # f_d = J_Phi^T lambda_d as jets
     for k in range(n):
-        if k > 0:
-            fact *= k
-        b1 = -nx * s1[k] + ny * c1[k]
-        b12 = -nx * s12[k] + ny * c12[k]
-        out[k, 0] = lambda_d * (l1 * b1 + l2 * b12) * fact
-        out[k, 1] = lambda_d * l2 * b12 * fact
+        f2[k] = lambda_d * l2 * (-nx * s12[k] + ny * c12[k])
+        f1[k] = lambda_d * l1 * (-nx * s1[k] + ny * c1[k]) + f2[k]
+    jet_to_derivatives(f1, out[:, 0])
+    jet_to_derivatives(f2, out[:, 1])
