@@ -76,3 +76,14 @@ class RosProbe:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
+
+
+def recorded_arrays(mcap, topic: str) -> list[tuple[list[str], list[float]]]:
+    """(field names, values) of every labelled array recorded on ``topic`` in ``mcap``."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(mcap, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        return [(m.layout.dim[0].label.split(","), list(m.data))
+                for _, _, _, m in reader.iter_decoded_messages(topics=[topic])]

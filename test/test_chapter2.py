@@ -354,7 +354,7 @@ def test_lockstep_over_ros_matches_offline(scheme, fields, tmp_path):
     numbers, lambda carried by the wrench topic (n_c lambda). The plant node's effort and
     rate limits are opened up: the start from rest asks for ~20 N m within a cycle, which
     the default limits (URDF 20 N m, 1000 N m/s) would clip, and the offline loop has none."""
-    from ros_probe import next_domain
+    from ros_probe import next_domain, recorded_arrays
 
     from cr_control.analysis.analyze import load_session
     from cr_control.tools.offline import run_scheme
@@ -377,22 +377,11 @@ def test_lockstep_over_ros_matches_offline(scheme, fields, tmp_path):
     for field in fields:
         assert np.abs(s.status[field] - reference.column(field)[k]).max() < 1e-6, field
     # The plant publishes lambda itself (and the drift) on /plant/sensors, same stamps.
-    sensors = _recorded_arrays(mcap, "/plant/sensors")
+    sensors = recorded_arrays(mcap, "/plant/sensors")
     assert len(sensors) == 2000 and sensors[0][0] == ["stamp", "lambda", "phi", "phi_dot"]
     lam = {round(d[0] * 1000): d[1] for _, d in sensors}
     assert max(abs(lam[int(i)] - v) for i, v in zip(k, s.status["lambda"], strict=True)) < 1e-9
     assert max(abs(d[2]) for _, d in sensors) < 1e-6            # |Phi| over the run
-
-
-def _recorded_arrays(mcap, topic):
-    """(field names, values) of every labelled array recorded on ``topic``."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
-    with open(mcap, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        return [(m.layout.dim[0].label.split(","), list(m.data))
-                for _, _, _, m in reader.iter_decoded_messages(topics=[topic])]
 
 
 def test_shipped_plant_config_is_the_defaults():
