@@ -24,7 +24,7 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.schemes import moving_object_model as mo
-from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.controller import ControlOutput
 from cr_control.schemes.task_space import KernelOutput
 
 ESTIMATE_FIELDS = [f"P_hat_{i + 1}" for i in range(7)]
@@ -68,7 +68,7 @@ def moving_object_adaptive_cycle(gains, state, t, dt, q, v, force, out):
     st[_EXTRAS:_EXTRAS + 7] = P_hat
 
 
-class MovingObjectAdaptiveController(Controller):
+class MovingObjectAdaptiveController(mo.MovingObjectController):
     """Model-based adaptive control (2.27, 2.35) with the section 2.4 gains."""
 
     scheme = "moving_object_adaptive"
@@ -78,16 +78,10 @@ class MovingObjectAdaptiveController(Controller):
               "Initial estimates P_hat(0) (2.4); true P = [0.6135 0.0045 0.30225 0.441 0.147 "
               "0.06 0.06] (DESIGN.md).", "vector", 7, read_only=True),
     ])
-    reference_fields = mo.REFERENCE
     extra_status_fields = mo.STATUS + ESTIMATE_FIELDS
-    command_status_fields = ["tau_1", "tau_2", "tau_3"]
-
-    JOINT_NAMES_PARAMETER = mo.JOINT_NAMES_PARAMETER
 
     def __init__(self, values: dict):
         super().__init__(values)
-        if self.n_joints != 3:
-            raise ValueError(f"{self.scheme} commands 3 joints, got {self.values['joint_names']}")
         self.gains = np.zeros(GAINS.size)
         self.pack_gains()
         self.internal = np.concatenate([[0.0], np.asarray(self.values["P_hat_0"], dtype=float)])

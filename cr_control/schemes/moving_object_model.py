@@ -39,7 +39,7 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.core.topics import REFERENCE_FIELDS
-from cr_control.schemes.controller import COMMON_PARAMETERS
+from cr_control.schemes.controller import COMMON_PARAMETERS, Controller
 
 #: The true P of section 2.4 with the corrected geometry (DESIGN.md).
 TRUE_P = np.array([0.6135, 0.0045, 0.30225, 0.441, 0.147, 0.06, 0.06])
@@ -280,6 +280,20 @@ STATUS = ["tau_3", "lambda", "lambda_err", "lambda_integral", "x_o", "x_o_err", 
           "x_co_err", "e1_1", "e1_2", "r1_1", "r1_2"]
 N_STATUS_COMMON = 14   # topics.STATUS_FIELDS without stamp (r..tau_2, compute_time_us, held)
 EXTRAS_AT = N_STATUS_COMMON + len(STATUS)
+
+
+class MovingObjectController(Controller):
+    """Base of the chapter 2 schemes: commands the arm's two joints and the object axis,
+    publishes REFERENCE and STATUS before its own fields."""
+
+    reference_fields = REFERENCE
+    command_status_fields = ["tau_1", "tau_2", "tau_3"]
+    JOINT_NAMES_PARAMETER = JOINT_NAMES_PARAMETER
+
+    def __init__(self, values: dict):
+        super().__init__(values)
+        if self.n_joints != 3:
+            raise ValueError(f"{self.scheme} commands 3 joints, got {self.values['joint_names']}")
 
 
 @njit(cache=True)

@@ -41,7 +41,7 @@ from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.schemes import moving_object_model as mo
 from cr_control.schemes import rbf_network
-from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.controller import ControlOutput
 from cr_control.schemes.task_space import KernelOutput
 
 NORM_FIELDS = ["M1_norm", "M1_hat_norm", "C1_norm", "C1_hat_norm", "G1_norm", "G1_hat_norm"]
@@ -118,7 +118,7 @@ def grid(low, high, counts) -> np.ndarray:
         np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low)))
 
 
-class MovingObjectNNController(Controller):
+class MovingObjectNNController(mo.MovingObjectController):
     """RBF-network adaptive control (2.74, 2.79-2.81) with the section 2.4 values."""
 
     scheme = "moving_object_nn"
@@ -146,16 +146,10 @@ class MovingObjectNNController(Controller):
         Param("true_parameters", list(mo.TRUE_P), "P used only for the published true norms.",
               "vector", 7),
     ])
-    reference_fields = mo.REFERENCE
     extra_status_fields = mo.STATUS + NORM_FIELDS
-    command_status_fields = ["tau_1", "tau_2", "tau_3"]
-
-    JOINT_NAMES_PARAMETER = mo.JOINT_NAMES_PARAMETER
 
     def __init__(self, values: dict):
         super().__init__(values)
-        if self.n_joints != 3:
-            raise ValueError(f"{self.scheme} commands 3 joints, got {self.values['joint_names']}")
         vals = self.values
         counts_q, counts_z = vals["rbf_grid_q"], vals["rbf_grid_z"]
         if any(c != int(c) for c in [*counts_q, *counts_z]):
