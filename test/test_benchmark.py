@@ -3,10 +3,14 @@
 No timing is asserted: only that the figures are parsed, combined and produced.
 """
 
+import argparse
+import io
 import math
 import subprocess
 import sys
+from pathlib import Path
 
+import pytest
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -45,8 +49,12 @@ def test_cpu_percent_and_samples():
 
 def test_machine_stat_busy_ticks():
     text = "cpu  100 5 50 9000 40 3 2 1 0 0\ncpu0 50 2 25 4500 20 1 1 0 0 0\nintr 1 2\n"
-    assert bm.parse_machine_stat(text) == 100 + 5 + 50 + 3 + 2 + 1
+    assert bm.parse_machine_stat(text) == 100 + 5 + 50 + 3 + 2   # steal (1) is not our machine's
+    assert bm.parse_machine_stat(text, steal=True) == 1
+    assert bm.parse_machine_stat("cpu  100 5 50 9000 40 3 2\n", steal=True) == 0  # old kernels
     assert bm.read_machine_ticks() is None or bm.read_machine_ticks() >= 0
+    assert bm.disturbed({"cpu_others_pct": 12.0, "cpu_steal_pct": 9.0})   # together over 20 %
+    assert not bm.disturbed({"cpu_others_pct": 12.0, "cpu_steal_pct": None})
 
 
 def test_done_line():
@@ -212,6 +220,72 @@ def test_cost_targets_use_scaled_figures():
     assert {t.verdict for t in bm.cost_targets({}, {}, {}, None)} == {"n/a"}
 
 
+def test_cost_targets_carried_by_the_issues_own_code():
+    """With the reference run, our figures are carried to the issue's machine by the ratio of
+    the issue's figures of its code to that code measured in this run; the loop-iteration
+    scaling follows, marked."""
+    before = bm.ISSUE_BEFORE
+    reference = {"rev": "abc", "compute_p50_us": 2 * before["compute_p50_us"],   # machine 2x slower
+                 "plant_step_us": before["plant_step_us"] / 2,                    # 2x faster
+                 "offline_speed": before["offline_speed"] * 4, "lockstep_composed_speed": None}
+    session = {"compute_p50_us": 150.0, "plant_step_us": 50.0}
+    targets = bm.cost_targets(session, {"speed": 3.0}, {"speed": 30.0}, loop_ns=30.0, reference=reference)
+    assert len(targets) == 8
+    by_name = {t.name: t for t in targets}
+    assert by_name["controller compute p50 in the node"].value == 75.0       # 150 x 1/2
+    assert by_name["controller compute p50 in the node"].verdict == "PASS"
+    assert by_name["plant step, mean"].value == 100.0                        # 50 x 2
+    assert by_name["plant step, mean"].verdict == "FAIL"
+    assert by_name["offline loop speed"].value == 7.5                        # 30 / 4
+    assert by_name["lockstep composed speed"].verdict == "n/a"               # no reference figure
+    assert by_name["controller compute p50 in the node [loop scaling]"].value == 1500.0
+    assert "abc" in by_name["plant step, mean"].note
+    failed = bm.cost_targets(session, {}, {}, 30.0, reference={"rev": "abc", "error": "no git"})
+    assert [t.name for t in failed] == [name for name, *_ in bm.COST_TARGETS]   # loop scaling only
+    assert "abc" in bm.format_reference(reference)
+    assert "no git" in bm.format_reference({"error": "no git"})
+    assert bm.reference_scaled(1.0, 0.0, 2.0) is None and bm.reference_scaled(None, 1.0, 2.0) is None
+
+
+def test_reference_run_reports_a_missing_revision(tmp_path):
+    args = argparse.Namespace(duration=1.0, lockstep_duration=1.0, skip_offline=True, skip_lockstep=True,
+                              no_compute_time=True)
+    progress = bm.Progress(stream=io.StringIO())
+    result = bm.run_reference("0" * 40, tmp_path, args, progress)
+    assert result["error"].startswith("no revision " + "0" * 40)
+
+
+def test_median_of_repeats_keeps_each_repeat_and_errors():
+    figs = [{"rate_hz": 990.0, "fresh_diff_pp": -3.0, "cpu_per_process_pct": {"plant": 40.0}, "logs": "a"},
+            {"rate_hz": 995.0, "fresh_diff_pp": -1.0, "cpu_per_process_pct": {"plant": 50.0}, "logs": "b"},
+            {"rate_hz": 980.0, "fresh_diff_pp": math.nan, "cpu_per_process_pct": {"plant": 45.0}, "logs": "c",
+             "error": "no 'done:' line"}]
+    merged = bm.median_figures(figs)
+    assert merged["rate_hz"] == 990.0                       # median of three
+    assert merged["fresh_diff_pp"] == -2.0                  # median of the two finite ones
+    assert merged["cpu_per_process_pct"] == {"plant": 45.0}
+    assert merged["logs"] == "a" and merged["error"] == "no 'done:' line"
+    assert [r["rate_hz"] for r in merged["repeats"]] == [990.0, 995.0, 980.0]
+    assert bm.median_figures(figs[:1]) == figs[0]           # one repeat: as measured
+    assert "-3.00 pp" in bm.format_repeats([("session processes", merged)])
+
+
+def test_reference_run_measures_the_issues_own_code(tmp_path):
+    """The code issue 6 measured comes out of this repository's history and runs its own
+    benchmark (short runs here): the four figures the cost targets are carried by."""
+    repo = Path(bm.__file__).resolve().parents[2]
+    if subprocess.run(["git", "-C", str(repo), "cat-file", "-e", f"{bm.REFERENCE_REV}^{{commit}}"],
+                      capture_output=True).returncode != 0:
+        pytest.skip(f"no git history with {bm.REFERENCE_REV} here (a shallow or exported copy)")
+    args = argparse.Namespace(duration=4.0, lockstep_duration=0.5, skip_offline=False, skip_lockstep=False,
+                              no_compute_time=False)
+    result = bm.run_reference(bm.REFERENCE_REV, tmp_path, args, bm.Progress(stream=io.StringIO()))
+    assert "error" not in result, result.get("error")
+    assert all(result[key] > 0 for key in bm.ISSUE_BEFORE), result
+    assert (tmp_path / f"reference-{bm.REFERENCE_REV}" / "cr_control" / "benchmark.py").exists()  # its layout
+    assert "reference" in bm.format_reference(result)
+
+
 def test_recorder_window_cost_and_samples():
     log_times = [1_000 + 10 * i for i in range(100)]  # 100 messages, 10 ns apart
     cost = bm.recorder_window_cost(50, 60, 1_000, 1_500, log_times, clk_tck=100)
@@ -244,6 +318,8 @@ def test_calibration_figures_are_positive():
     assert bm.loop_ns_per_iteration(n=1000, repeats=2) > 0
     aba = bm.aba_us_per_call(n=10, repeats=1)
     assert aba is None or aba > 0
+    steps = bm.step_us_hot_and_after_idle(cycles=20, idle_s=1e-4)
+    assert steps["step_hot_us"] > 0 and steps["step_after_idle_us"] > 0
 
 
 def test_mcap_log_times_from_message_indexes(tmp_path):

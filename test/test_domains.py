@@ -22,6 +22,7 @@ from cr_control.core.ros_env import (
     DOMAIN_SPAN,
     FIRST_DOMAIN,
     DomainBusyError,
+    claim_consecutive_domains,
     claim_domain,
     claim_free_domain,
     domain_in_use,
@@ -86,6 +87,23 @@ def test_free_domain_id_skips_held_ids():
         assert int(proc.stdout) != lock.domain_id
     finally:
         lock.release()
+
+
+def test_consecutive_domains_skip_a_run_broken_by_a_holder():
+    proc, domain = holder()                                 # another process holds one id
+    try:
+        locks = claim_consecutive_domains(3, first=domain - 1, span=8)
+        ids = [lock.domain_id for lock in locks]
+        assert ids == list(range(ids[0], ids[0] + 3)) and ids[0] > domain   # a run that avoids it
+        assert not domain_in_use(ids[0])                    # ours (counted claims)
+        with pytest.raises(DomainBusyError, match="no 3 consecutive"):
+            claim_consecutive_domains(3, first=domain - 1, span=4)   # domain-1 .. domain+2
+        for lock in locks:
+            lock.release()
+        assert all(not lock.held for lock in locks)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
 
 
 # -- two sessions ------------------------------------------------------------------------

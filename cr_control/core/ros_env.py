@@ -154,6 +154,25 @@ def claim_free_domain(first: int = FIRST_DOMAIN, span: int = DOMAIN_SPAN,
     raise DomainBusyError(f"every ROS_DOMAIN_ID in {first}..{first + span - 1} is in use on this machine")
 
 
+def claim_consecutive_domains(count: int, first: int = FIRST_DOMAIN,
+                              span: int = DOMAIN_SPAN) -> list[DomainLock]:
+    """Hold ``count`` consecutive ids of ``first .. first + span - 1`` that no process
+    (this one included) holds: for a program that numbers its runs from one base id.
+    DomainBusyError if there is no such run of ids."""
+    for start in range(first, first + span - count + 1):
+        locks: list[DomainLock] = []
+        try:
+            for domain_id in range(start, start + count):
+                if domain_id in _held:
+                    raise DomainBusyError(f"ROS_DOMAIN_ID {domain_id} is ours already")
+                locks.append(claim_domain(domain_id))
+            return locks
+        except DomainBusyError:
+            for lock in locks:
+                lock.release()
+    raise DomainBusyError(f"no {count} consecutive free ROS_DOMAIN_IDs in {first}..{first + span - 1}")
+
+
 def domain_in_use(domain_id: int) -> bool:
     """True if another process holds ``domain_id`` (a snapshot: it may change right after)."""
     if domain_id in _held:

@@ -14,24 +14,38 @@ Runs, one after another, each on a ROS_DOMAIN_ID of its own (localhost discovery
 5. lockstep sessions (across processes and composed) and the offline loop (no ROS):
    how many times faster than real time the same plant and controller run.
 
-A calibration (ns per plain Python loop iteration, µs per Pinocchio ABA call on the
-2-link arm), measured at the start and the end of the run, scales the cost figures to
-the reference machine (:data:`REFERENCE_LOOP_NS` ns per loop iteration) the targets of
-issue 6 are stated for: costs × reference / calibration, speeds × calibration / reference.
-Every target is printed with its measured value and PASS/FAIL.
+Two ways to carry the cost figures to the machine the targets of issue 6 are stated for:
+
+- **by the issue's own code** (default; ``--reference REV``): the code the issue measured
+  (:data:`REFERENCE_REV`, taken from this repository's git history) runs its own benchmark
+  in this run, and each of our cost figures is multiplied by that code's figure in the
+  issue's "before" table (:data:`ISSUE_BEFORE`) over the same figure measured now. This
+  compares like with like on the same machine in the same run.
+- **by a calibration** (ns per plain Python loop iteration, µs per Pinocchio ABA call on
+  the 2-link arm), measured at the start and the end of the run: costs × reference /
+  calibration, speeds × calibration / reference, for :data:`REFERENCE_LOOP_NS` ns per
+  loop iteration. Printed as "[loop scaling]"; it describes pure interpreter work, not
+  compiled kernels or rclpy's C paths, and it does not reproduce the issue's own figures
+  (README, "Real time").
+
+Every target is printed with its measured value and PASS/FAIL. With ``--repeat N`` each
+session/echo pair runs N times in ABBA order and the tables and targets show medians (of
+the pairwise differences and ratios for the "vs baseline" rows), each repeat printed.
 
 Whole-run loop figures come from the last ``/plant/timing`` message (``total_*`` fields)
 and the plant's "done:" log line; CPU is read from ``/proc/<pid>/stat`` (utime + stime)
 between the first and the last timing message, so start-up and shutdown are excluded,
 and divided by the cycles counted between them (CPU per control cycle); "anything else"
-is the machine's busy time (``/proc/stat``) not spent by the run, to flag runs disturbed
+is the machine's busy time (``/proc/stat``) not spent by the run and "stolen" the time
+the hypervisor gave to other machines while ours wanted to run, to flag runs disturbed
 by other work. Where a cycle's time goes is read by name from the plant timing
 (``step_time_us``, ``publish_time_us``) and the controller status (``in_time_us``,
 ``compute_time_us``, ``out_time_us``), "n/a" where a node does not publish a field. The
 status is read by a best-effort raw subscriber in this process (~5% of a core, shown as
 "benchmark listener"; ``--no-compute-time`` turns it off).
 
-    cr_benchmark                         # ~3 min on a 2-core machine
+    cr_benchmark                         # ~4 min on a 2-core machine
+    cr_benchmark --repeat 3              # ~8 min: the README's figures
     cr_benchmark --duration 5 --json /tmp/bench.json --skip-offline
     cr_benchmark --only-recorder-load    # the recorder's CPU per message, ~15 s
 """
@@ -40,12 +54,15 @@ from __future__ import annotations
 
 import argparse
 import bisect
+import io
 import json
 import math
 import os
 import re
 import struct
+import subprocess
 import sys
+import tarfile
 import tempfile
 import threading
 import time
@@ -59,6 +76,8 @@ from cr_control.core import topics
 from cr_control.core.ros_env import (
     DOMAIN_SPAN,
     FIRST_DOMAIN,
+    DomainBusyError,
+    claim_consecutive_domains,
     claim_free_domain,
     isolate_this_process,
     isolated_env,
@@ -71,6 +90,11 @@ SCHEME = "adaptive_impedance"
 DISTURBED_PCT = 20.0
 #: ns per plain Python loop iteration of the machine the cost targets are stated for.
 REFERENCE_LOOP_NS = 300.0
+#: The code issue 6 measured its "before" table on (the last commit before the work on it).
+REFERENCE_REV = "0659bc7"
+#: That code's figures in the issue's "before" table: the machine the cost targets are for.
+ISSUE_BEFORE = {"compute_p50_us": 382.0, "plant_step_us": 247.0, "offline_speed": 2.6,
+                "lockstep_composed_speed": 0.90}
 #: The recorder executable's module (``--recorder-module`` swaps it, for A/B comparisons).
 RECORDER_MODULE = "cr_control.recording.recorder"
 #: Timing fields of the controller status read by name (absent ones print "n/a").
@@ -102,26 +126,31 @@ def read_cpu_ticks(pid: int | str) -> int | None:
         return None
 
 
-def parse_machine_stat(text: str) -> int:
-    """Busy clock ticks of all CPUs together from the text of ``/proc/stat`` (its "cpu" line:
-    user, nice, system, irq, softirq, steal; idle and iowait left out)."""
+def parse_machine_stat(text: str, steal: bool = False) -> int:
+    """Clock ticks of all CPUs together from the text of ``/proc/stat`` (its "cpu" line):
+    busy ones (user, nice, system, irq, softirq; idle, iowait and steal left out), or with
+    ``steal`` the ticks the hypervisor gave to other machines while ours wanted to run."""
     for line in text.splitlines():
         if line.startswith("cpu "):
             v = [int(x) for x in line.split()[1:]]
-            return v[0] + v[1] + v[2] + v[5] + v[6] + (v[7] if len(v) > 7 else 0)
+            if steal:
+                return v[7] if len(v) > 7 else 0
+            return v[0] + v[1] + v[2] + v[5] + v[6]
     raise ValueError("no aggregate cpu line")
 
 
-def read_machine_ticks() -> int | None:
-    """Busy clock ticks of the whole machine so far (None where there is no /proc/stat)."""
+def read_machine_ticks(steal: bool = False) -> int | None:
+    """Busy (or, with ``steal``, stolen) clock ticks of the whole machine so far (None where
+    there is no /proc/stat)."""
     try:
         with open("/proc/stat") as f:
-            return parse_machine_stat(f.read())
+            return parse_machine_stat(f.read(), steal)
     except (OSError, ValueError, IndexError):
         return None
 
 
 MACHINE = "machine"
+STEAL = "steal"
 LISTENER = "listener"
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -258,6 +287,70 @@ def scaled_speed(value: float | None, loop_ns: float | None,
     return value * loop_ns / reference_ns
 
 
+def reference_scaled(value: float | None, today: float | None, before: float | None) -> float | None:
+    """One of our figures as it would read on the machine of issue 6's "before" table:
+    ``value`` × ``before`` / ``today``, where ``today`` is the same figure of the code the
+    issue measured (:data:`REFERENCE_REV`), measured in this run, and ``before`` the issue's.
+    Costs and speeds alike: the ratio of ours to that code's is what carries over."""
+    if not (_finite(value) and _finite(today) and _finite(before)) or today <= 0:
+        return None
+    return value * before / today
+
+
+#: Per-repeat figures kept beside the medians (printed as the spread of a repeated run).
+REPEAT_KEYS = ("rate_hz", "fresh_pct", "rt_p99_ms", "fresh_diff_pp", "p99_ratio", "cpu_others_pct",
+               "cpu_steal_pct")
+
+
+def median_figures(figs: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One run's figures from repeats of it: per key the median of the finite numbers
+    (nested dicts key by key), other values from the first repeat; ``repeats`` keeps each
+    repeat's :data:`REPEAT_KEYS`, ``error`` joins the failed repeats' errors."""
+    if len(figs) == 1:
+        return dict(figs[0])
+    out = _medians(figs)
+    out["repeats"] = [{k: fig.get(k) for k in REPEAT_KEYS} for fig in figs]
+    errors = [fig["error"] for fig in figs if fig.get("error")]
+    out.pop("error", None)
+    if errors:
+        out["error"] = "; ".join(errors)
+    return out
+
+
+def _medians(figs: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key in dict.fromkeys(k for fig in figs for k in fig):
+        values = [fig.get(key) for fig in figs]
+        numbers = sorted(v for v in values if _finite(v))
+        dicts = [v for v in values if isinstance(v, dict)]
+        if numbers:
+            mid = len(numbers) // 2
+            out[key] = numbers[mid] if len(numbers) % 2 else (numbers[mid - 1] + numbers[mid]) / 2
+        elif dicts:
+            out[key] = _medians(dicts)
+        else:
+            out[key] = next((v for v in values if v is not None), None)
+    return out
+
+
+def format_repeats(runs: Sequence[tuple[str, dict[str, Any]]]) -> str:
+    """Each repeat of the repeated sessions: rate, fresh share and p99 against its echo pair."""
+    lines = []
+    for title, fig in runs:
+        if not fig.get("repeats") or not title.startswith("session"):
+            continue
+        cells = [f"{fmt(r.get('rate_hz'), '.1f')} Hz {fmt(r.get('fresh_diff_pp'), '+.2f')} pp "
+                 f"p99 {fmt(r.get('p99_ratio'), '.2f')}x" for r in fig["repeats"]]
+        lines.append(f"{title} vs its echo pair, each repeat: " + "; ".join(cells))
+    return "\n".join(lines)
+
+
+def disturbed(fig: dict[str, Any]) -> bool:
+    """Whether other processes and the hypervisor's steal together took more than
+    :data:`DISTURBED_PCT` of a core during a run."""
+    return (fig.get("cpu_others_pct") or 0.0) + (fig.get("cpu_steal_pct") or 0.0) > DISTURBED_PCT
+
+
 def _finite(x: Any) -> bool:
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
@@ -325,19 +418,43 @@ def realtime_targets(layout: str, session: dict[str, Any], echo: dict[str, Any])
     return out
 
 
+#: Issue 6's cost targets: (name, figure key in ISSUE_BEFORE, comparison, limit, unit).
+COST_TARGETS = (
+    ("controller compute p50 in the node", "compute_p50_us", "<=", 100.0, " us"),
+    ("plant step, mean", "plant_step_us", "<=", 80.0, " us"),
+    ("offline loop speed", "offline_speed", ">=", 10.0, "x"),
+    ("lockstep composed speed", "lockstep_composed_speed", ">=", 2.0, "x"),
+)
+
+
+def cost_figures(session: dict[str, Any], lockstep_composed: dict[str, Any],
+                 offline: dict[str, Any]) -> dict[str, float | None]:
+    """The four figures issue 6's cost targets are about, by ISSUE_BEFORE's keys."""
+    return {"compute_p50_us": session.get("compute_p50_us"), "plant_step_us": session.get("plant_step_us"),
+            "offline_speed": offline.get("speed"), "lockstep_composed_speed": lockstep_composed.get("speed")}
+
+
 def cost_targets(session: dict[str, Any], lockstep_composed: dict[str, Any],
-                 offline: dict[str, Any], loop_ns: float | None) -> list[Target]:
-    """Issue 6's cost targets, on figures scaled to the reference machine."""
-    note = f"scaled to {REFERENCE_LOOP_NS:g} ns/loop iteration"
-    return [
-        Target("controller compute p50 in the node", scaled_cost(session.get("compute_p50_us"), loop_ns),
-               "<=", 100.0, " us", note),
-        Target("plant step, mean", scaled_cost(session.get("plant_step_us"), loop_ns), "<=", 80.0, " us",
-               note),
-        Target("offline loop speed", scaled_speed(offline.get("speed"), loop_ns), ">=", 10.0, "x", note),
-        Target("lockstep composed speed", scaled_speed(lockstep_composed.get("speed"), loop_ns), ">=", 2.0,
-               "x", note),
-    ]
+                 offline: dict[str, Any], loop_ns: float | None,
+                 reference: dict[str, Any] | None = None) -> list[Target]:
+    """Issue 6's cost targets. With ``reference`` (the issue's own code measured in this run,
+    :func:`run_reference`), on our figures carried to the issue's machine by that code's
+    ratio (:func:`reference_scaled`), followed by the same targets by the loop-iteration
+    scaling, marked "[loop scaling]"; without it, by the loop-iteration scaling alone."""
+    ours = cost_figures(session, lockstep_composed, offline)
+    loop_note = f"scaled to {REFERENCE_LOOP_NS:g} ns/loop iteration"
+    out = []
+    if reference and not reference.get("error"):
+        rev = reference.get("rev", REFERENCE_REV)
+        for name, key, op, limit, unit in COST_TARGETS:
+            today, before = reference.get(key), ISSUE_BEFORE[key]
+            note = f"x {fmt(before, '.3g')} / {fmt(today, '.3g')}: {rev} in the issue vs in this run"
+            out.append(Target(name, reference_scaled(ours[key], today, before), op, limit, unit, note))
+    suffix = " [loop scaling]" if out else ""
+    for name, key, op, limit, unit in COST_TARGETS:
+        scale = scaled_cost if unit == " us" else scaled_speed
+        out.append(Target(name + suffix, scale(ours[key], loop_ns), op, limit, unit, loop_note))
+    return out
 
 
 def format_targets(targets: Sequence[Target]) -> str:
@@ -405,6 +522,7 @@ REALTIME_ROWS = [
     ("CPU total (% core)", "cpu_total_pct", ".1f", ""),
     ("CPU benchmark listener (% core)", "cpu_listener_pct", ".1f", ""),
     ("CPU anything else (% core)", "cpu_others_pct", ".1f", ""),
+    ("CPU stolen by the hypervisor (% core)", "cpu_steal_pct", ".1f", ""),
     ("CPU/cycle plant / source (us)", "cycle_cpu_state_us", ".1f", ""),
     ("CPU/cycle controller / echo (us)", "cycle_cpu_command_us", ".1f", ""),
     ("CPU/cycle recorder (us)", "cycle_cpu_recorder_us", ".1f", ""),
@@ -444,7 +562,7 @@ def format_realtime_table(runs: Sequence[tuple[str, dict[str, Any]]]) -> str:
 def format_speed_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
     """Lockstep / offline speeds ((title, figures)) as a text table."""
     head = ["", "simulated s", "wall s", "x real time", "x scaled", "cycles/s", "rt p50 (ms)",
-            "rt p99 (ms)", "CPU (% core)", "others (%)"]
+            "rt p99 (ms)", "CPU (% core)", "others (%)", "stolen (%)"]
     title_w = max([len("offline loop (no ROS)"), *(len(t) for t, _ in rows)])
     out = [head[0].ljust(title_w) + "".join(h.rjust(13) for h in head[1:])]
     for title, fig in rows:
@@ -455,7 +573,8 @@ def format_speed_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
                  fmt(fig.get("speed"), ".2f", "x"), fmt(fig.get("speed_scaled"), ".2f", "x"),
                  fmt(fig.get("rate_hz"), ".0f"),
                  fmt(fig.get("rt_p50_ms"), ".3f"), fmt(fig.get("rt_p99_ms"), ".3f"),
-                 fmt(fig.get("cpu_total_pct"), ".0f"), fmt(fig.get("cpu_others_pct"), ".0f")]
+                 fmt(fig.get("cpu_total_pct"), ".0f"), fmt(fig.get("cpu_others_pct"), ".0f"),
+                 fmt(fig.get("cpu_steal_pct"), ".0f")]
         out.append(title.ljust(title_w) + "".join(c.rjust(13) for c in cells))
     return "\n".join(out)
 
@@ -528,6 +647,34 @@ def aba_us_per_call(n: int = 2000, repeats: int = 5) -> float | None:
     return best / n * 1e6
 
 
+def step_us_hot_and_after_idle(cycles: int = 400, idle_s: float = 0.0009) -> dict[str, float]:
+    """Median µs of one ``Controller.step`` of the scheme back to back ("hot") and after
+    sleeping ``idle_s`` before each, as a node does between its 1 kHz states ("after
+    idle"): on a virtual machine the second is several times the first (caches and
+    predictors go cold while the vCPU idles), which is why the compute time in a node
+    exceeds the offline one."""
+    import numpy as np
+
+    from cr_control.schemes.registry import make_controller
+
+    controller = make_controller(SCHEME)
+    controller.log_warning = lambda _message: None
+    q, v, force = np.array([0.3, 0.4]), np.zeros(2), np.zeros(3)
+    out = {}
+    stamp = 0.0
+    for label, idle in (("step_hot_us", 0.0), ("step_after_idle_us", idle_s)):
+        times = []
+        for _ in range(cycles):
+            if idle:
+                time.sleep(idle)
+            stamp += 1e-3
+            t0 = time.perf_counter_ns()
+            controller.step(stamp, q, v, force)
+            times.append(time.perf_counter_ns() - t0)
+        out[label] = percentile(times, 50) / 1e3
+    return out
+
+
 def warm_up() -> None:
     """A few offline cycles of the scheme in this process: compiled kernels are built and
     cached (numba ``cache=True``) before the runs, so that no run's first cycle compiles."""
@@ -537,8 +684,9 @@ def warm_up() -> None:
 
 
 def calibrate() -> dict[str, float | None]:
-    """This machine's speed now: ns per plain loop iteration, µs per ABA call."""
-    return {"loop_ns": loop_ns_per_iteration(), "aba_us": aba_us_per_call()}
+    """This machine's speed now: ns per plain loop iteration, µs per ABA call, µs per
+    controller step hot and after idling (:func:`step_us_hot_and_after_idle`)."""
+    return {"loop_ns": loop_ns_per_iteration(), "aba_us": aba_us_per_call(), **step_us_hot_and_after_idle()}
 
 
 def mcap_log_times(path: Path) -> list[int]:
@@ -633,6 +781,7 @@ class Listener:
         ticks: dict[str, int | None] = {name: read_cpu_ticks(pid) for name, pid in list(self.pids().items())}
         ticks[LISTENER] = read_cpu_ticks("self")
         ticks[MACHINE] = read_machine_ticks()
+        ticks[STEAL] = read_machine_ticks(steal=True)
         self.cpu_samples.append((now, ticks))
         self.wall_ns.append(time.time_ns())
 
@@ -725,7 +874,7 @@ def _steady_figures(listener: Listener | None, names: dict[str, str],
     if listener is None:
         return fig
     cpu = cpu_from_samples(listener.cpu_samples)
-    ours = {k: v for k, v in cpu.items() if k not in (LISTENER, MACHINE)}
+    ours = {k: v for k, v in cpu.items() if k not in (LISTENER, MACHINE, STEAL)}
     for role, proc in names.items():
         fig[f"cpu_{role}_pct"] = cpu.get(proc)
     fig["cpu_total_pct"] = sum(ours.values()) if ours else None
@@ -733,9 +882,10 @@ def _steady_figures(listener: Listener | None, names: dict[str, str],
     fig["cpu_per_process_pct"] = ours
     if MACHINE in cpu:
         fig["cpu_others_pct"] = max(0.0, cpu[MACHINE] - sum(ours.values()) - cpu.get(LISTENER, 0.0))
+    fig["cpu_steal_pct"] = cpu.get(STEAL)
     reports = [t for _, t in listener.timing]
     cycles = [t.get("total_cycles", math.nan) for t in reports]
-    per_cycle = cpu_per_cycle([{k: v for k, v in ticks.items() if k not in (LISTENER, MACHINE)}
+    per_cycle = cpu_per_cycle([{k: v for k, v in ticks.items() if k not in (LISTENER, MACHINE, STEAL)}
                                for _, ticks in listener.cpu_samples], cycles)
     fig["cycle_cpu_per_process_us"] = per_cycle
     for role, proc in names.items():
@@ -976,17 +1126,97 @@ def run_offline(duration: float, progress: Progress) -> dict[str, Any]:
     progress.begin("offline loop")
     from cr_control.tools.offline import run_scheme
 
-    t0, cpu0, machine0 = time.perf_counter(), time.process_time(), read_machine_ticks()
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    machine0, steal0 = read_machine_ticks(), read_machine_ticks(steal=True)
     result = run_scheme(SCHEME, duration)
     wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
-    machine1 = read_machine_ticks()
-    others = None
+    machine1, steal1 = read_machine_ticks(), read_machine_ticks(steal=True)
+    others = steal = None
     if machine0 is not None and machine1 is not None:
         others = max(0.0, cpu_percent(machine0, machine1, wall) - 100.0 * cpu / wall)
+        steal = cpu_percent(steal0, steal1, wall)
     cycles = len(result.time)
     progress(f"{duration:g} s simulated in {wall:.2f} s wall")
     return {"simulated_s": duration, "wall_s": wall, "speed": duration / wall, "cycles": cycles,
-            "rate_hz": cycles / wall, "cpu_total_pct": 100.0 * cpu / wall, "cpu_others_pct": others}
+            "rate_hz": cycles / wall, "cpu_total_pct": 100.0 * cpu / wall, "cpu_others_pct": others,
+            "cpu_steal_pct": steal}
+
+
+#: ROS domain ids the reference benchmark numbers its runs with, from one base id.
+REFERENCE_DOMAINS = 6
+
+
+def run_reference(rev: str, out: Path, args: argparse.Namespace, progress: Progress) -> dict[str, Any]:
+    """The code issue 6 measured (git revision ``rev`` of this repository) run by its own
+    benchmark in a subprocess, on this machine, in this run: the four figures of
+    :data:`ISSUE_BEFORE` as it measures them today, or {"error": why} (no git history, say).
+    Its runs use :data:`REFERENCE_DOMAINS` consecutive domain ids, all held meanwhile."""
+    progress.begin(f"reference {rev}")
+    repo = Path(__file__).resolve().parents[2]
+    tree = out / f"reference-{rev}"
+    try:
+        archive = subprocess.run(["git", "-C", str(repo), "archive", "--format=tar", rev,
+                                  "cr_control", "cr_sim", "config"],
+                                 capture_output=True, check=True, timeout=60)
+    except (OSError, subprocess.SubprocessError) as exc:
+        why = getattr(exc, "stderr", b"") or b""
+        message = why.decode(errors="replace").strip().splitlines()[-1:] or [str(exc)]
+        progress(f"skipped: no revision {rev} here ({message[0]})")
+        return {"rev": rev, "error": f"no revision {rev} in {repo}: {message[0]}"}
+    tree.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as tar:
+        tar.extractall(tree, filter="data")
+    json_path = tree / "benchmark.json"
+    cmd = [sys.executable, "-m", "cr_control.benchmark", "--duration", f"{args.duration:g}",
+           "--lockstep-duration", f"{args.lockstep_duration:g}", "--json", str(json_path),
+           "--out", str(tree / "logs")]
+    passed_on = {"--skip-offline": args.skip_offline, "--skip-lockstep": args.skip_lockstep,
+                 "--no-compute-time": args.no_compute_time}
+    cmd += [flag for flag, on in passed_on.items() if on]
+    try:
+        locks = claim_consecutive_domains(REFERENCE_DOMAINS)
+    except DomainBusyError as exc:
+        return {"rev": rev, "error": str(exc)}
+    cmd += ["--domain-base", str(locks[0].domain_id)]
+    env = isolated_env()
+    env["PYTHONPATH"] = os.pathsep.join([str(tree), *filter(None, [env.get("PYTHONPATH")])])
+    try:
+        with open(tree / "benchmark.log", "w") as log, subprocess.Popen(
+                cmd, cwd=tree, env=env, stdout=log, stderr=subprocess.PIPE, text=True) as proc:
+            for line in proc.stderr:
+                if line.startswith("["):
+                    progress(line)
+                log.write(line)
+    finally:
+        for lock in locks:
+            lock.release()
+    if proc.returncode != 0 or not json_path.exists():
+        return {"rev": rev,
+                "error": f"its benchmark exited with {proc.returncode} (log: {tree / 'benchmark.log'})"}
+    report = json.loads(json_path.read_text())
+    realtime, speed = report.get("realtime", {}), report.get("speed", {})
+    figures = cost_figures(realtime.get("session processes", {}), speed.get("lockstep composed", {}),
+                           speed.get("offline loop (no ROS)", {}))
+    runs = list(realtime.values()) + list(speed.values())
+    return {"rev": rev, **figures, "json": str(json_path),
+            "fresh_pct": realtime.get("session processes", {}).get("fresh_pct"),
+            "cpu_others_max_pct": max((f.get("cpu_others_pct") or 0.0 for f in runs), default=None)}
+
+
+def format_reference(reference: dict[str, Any]) -> str:
+    """The issue's code measured in this run beside the issue's own figures of it."""
+    if reference.get("error"):
+        return f"reference: {reference['error']}; cost targets by the loop-iteration scaling only"
+    lines = [f"reference: the code issue 6 measured ({reference['rev']}), run by its own benchmark "
+             "in this run, against the issue's figures of it",
+             "".ljust(36) + "this run".rjust(12) + "issue".rjust(12) + "ratio".rjust(10)]
+    for name, key, _op, _limit, unit in COST_TARGETS:
+        today, before = reference.get(key), ISSUE_BEFORE[key]
+        ratio = before / today if _finite(today) and today > 0 else None
+        spec = ".2f" if unit == "x" else ".1f"
+        lines.append(name.ljust(36) + fmt(today, spec, unit).rjust(12) + fmt(before, spec, unit).rjust(12)
+                     + fmt(ratio, ".2f", "x").rjust(10))
+    return "\n".join(lines)
 
 
 # -- command line ----------------------------------------------------------------------------
@@ -1024,6 +1254,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated seconds of each lockstep run and of the offline loop (default 10)")
     p.add_argument("--recorder-duration", type=float, default=4.0,
                    help="seconds of synthetic load on the recorder (default 4)")
+    p.add_argument("--repeat", type=int, default=1,
+                   help="session/echo pairs per layout, in ABBA order; the tables and targets show "
+                        "the median over the pairs, the spread is printed (default 1)")
     p.add_argument("--json", type=Path, help="also write every figure to this JSON file")
     p.add_argument("--out", type=Path, help="directory for the runs' logs (default: a new temp dir)")
     p.add_argument("--skip-offline", action="store_true", help="no offline-loop speed")
@@ -1036,6 +1269,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--recorder-module", action="append",
                    help=f"module run as the recorder (default {RECORDER_MODULE}); given several "
                         "times, the recorder load runs each in turn (A/B comparison)")
+    p.add_argument("--reference", default=REFERENCE_REV, metavar="REV",
+                   help="git revision of the code issue 6 measured, run by its own benchmark beside "
+                        f"ours to carry the cost targets to the issue's machine (default {REFERENCE_REV})")
+    p.add_argument("--no-reference", action="store_true",
+                   help="no reference run: cost targets by the loop-iteration scaling only")
     p.add_argument("--no-compute-time", action="store_true",
                    help="do not subscribe to the controller status (no compute time figures)")
     p.add_argument("--domain-base", type=int,
@@ -1048,6 +1286,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if not args.duration > 0 or not args.lockstep_duration > 0 or not args.recorder_duration > 0:
         print("cr_benchmark: durations must be > 0", file=sys.stderr)
+        return 2
+    if args.repeat < 1:
+        print("cr_benchmark: --repeat must be >= 1", file=sys.stderr)
         return 2
     out = args.out or Path(tempfile.mkdtemp(prefix="cr_benchmark-"))
     out.mkdir(parents=True, exist_ok=True)
@@ -1067,23 +1308,36 @@ def main(argv: list[str] | None = None) -> int:
     speeds: list[tuple[str, dict[str, Any]]] = []
     loads: list[tuple[str, dict[str, Any]]] = []
     targets: list[Target] = []
+    reference: dict[str, Any] | None = None
     try:
         if not args.only_recorder_load:
-            for layout, composed in layouts:
-                session = run_session(f"session {layout}", next(domains), out, args.duration, "realtime",
-                                      composed, progress, compute)
-                echo = run_echo(f"echo {layout}", next(domains), out, args.duration, composed, progress)
-                session.update(ratios(session, echo))
-                realtime += [(f"session {layout}", session), (f"echo {layout}", echo)]
-                targets += realtime_targets(layout, session, echo)
+            pairs = [(layout, f"session {layout}", f"echo {layout}", composed, False)
+                     for layout, composed in layouts]
             if not args.skip_recorder:
-                session = run_session("session + recorder", next(domains), out, args.duration, "realtime",
-                                      False, progress, compute, record=True)
-                echo = run_echo("echo + recorder", next(domains), out, args.duration, False, progress,
-                                record=True, recorder_module=recorder_modules[0])
-                session.update(ratios(session, echo))
-                realtime += [("session + recorder", session), ("echo + recorder", echo)]
-                targets += realtime_targets("recorder", session, echo)
+                pairs.append(("recorder", "session + recorder", "echo + recorder", False, True))
+            for layout, session_title, echo_title, composed, record in pairs:
+                sessions, echoes = [], []
+                for r in range(args.repeat):
+                    tag = "" if args.repeat == 1 else f" #{r + 1}"
+
+                    def session_run(tag=tag, composed=composed, record=record, title=session_title):
+                        return run_session(title + tag, next(domains), out, args.duration, "realtime",
+                                           composed, progress, compute, record=record)
+
+                    def echo_run(tag=tag, composed=composed, record=record, title=echo_title):
+                        return run_echo(title + tag, next(domains), out, args.duration, composed, progress,
+                                        record=record, recorder_module=recorder_modules[0])
+
+                    if r % 2 == 0:      # ABBA order: a drift of the machine hits both alike
+                        session, echo = session_run(), echo_run()
+                    else:
+                        echo, session = echo_run(), session_run()
+                    session.update(ratios(session, echo))
+                    sessions.append(session)
+                    echoes.append(echo)
+                session, echo = median_figures(sessions), median_figures(echoes)
+                realtime += [(session_title, session), (echo_title, echo)]
+                targets += realtime_targets(layout, session, echo)
         if not args.skip_recorder or args.only_recorder_load:
             for module in recorder_modules:
                 title = "recorder, synthetic load" + ("" if len(recorder_modules) == 1 else f" ({module})")
@@ -1098,6 +1352,8 @@ def main(argv: list[str] | None = None) -> int:
             if not args.skip_offline:
                 speeds.append(("offline loop (no ROS)",
                                run_offline(args.lockstep_duration, progress)))
+            if not args.no_reference:
+                reference = run_reference(args.reference, out, args, progress)
     except KeyboardInterrupt:
         print("cr_benchmark: interrupted", file=sys.stderr)
         return 130
@@ -1123,7 +1379,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = dict(realtime + speeds)
     if "session processes" in runs:
         targets += cost_targets(runs["session processes"], runs.get("lockstep composed", {}),
-                                runs.get("offline loop (no ROS)", {}), loop_ns)
+                                runs.get("offline loop (no ROS)", {}), loop_ns, reference)
 
     print()
     print(f"cr_benchmark: {SCHEME}, real-time runs {args.duration:g} s at 1 kHz, "
@@ -1133,28 +1389,41 @@ def main(argv: list[str] | None = None) -> int:
           f"{fmt(calibration['start']['aba_us'], '.2f')} / {fmt(calibration['end']['aba_us'], '.2f')} us "
           f"per Pinocchio ABA call (2-link arm); scaled figures: x {REFERENCE_LOOP_NS:g} / {loop_ns:.1f} "
           f"(costs) or x {loop_ns:.1f} / {REFERENCE_LOOP_NS:g} (speeds)")
+    steps = [f"{fmt(c.get('step_hot_us'), '.1f')} us hot / {fmt(c.get('step_after_idle_us'), '.1f')} us "
+             f"after 0.9 ms idle ({when})" for when, c in (("start", calibration["start"]),
+                                                            ("end", calibration["end"]))]
+    print(f"controller step ({SCHEME}, offline), p50: {', '.join(steps)}: the node's compute time "
+          "is the second kind")
     if realtime:
         print()
         print(format_realtime_table(realtime))
+        if args.repeat > 1:
+            print(f"(medians of {args.repeat} repeats, ABBA order)")
+            print(format_repeats(realtime))
     if loads:
         print()
         print(format_recorder_load(loads, loop_ns))
     if speeds:
         print()
         print(format_speed_table(speeds))
+    if reference is not None:
+        print()
+        print(format_reference(reference))
     if targets:
         print()
         print(format_targets(targets))
-    busy = [t for t, f in realtime + speeds if (f.get("cpu_others_pct") or 0.0) > DISTURBED_PCT]
+    busy = [t for t, f in realtime + speeds if disturbed(f)]
     if busy:
-        print(f"\nnote: other processes used more than {DISTURBED_PCT:g}% of a core during "
+        print(f"\nnote: other processes or other machines (hypervisor steal) took more than "
+              f"{DISTURBED_PCT:g}% of a core during "
               f"{', '.join(busy)}: those figures may be disturbed; rerun on a quiet machine")
     print(f"\nlogs: {out}")
     if args.json:
         report = {
             "scheme": SCHEME, "duration_s": args.duration, "lockstep_duration_s": args.lockstep_duration,
+            "repeat": args.repeat,
             "cpu_count": os.cpu_count(), "total_s": total, "calibration": calibration,
-            "reference_loop_ns": REFERENCE_LOOP_NS,
+            "reference_loop_ns": REFERENCE_LOOP_NS, "reference": reference, "issue_before": ISSUE_BEFORE,
             "realtime": {title: fig for title, fig in realtime},
             "recorder_load": {title: fig for title, fig in loads},
             "speed": {title: fig for title, fig in speeds},
