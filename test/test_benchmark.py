@@ -255,6 +255,16 @@ def test_reference_run_reports_a_missing_revision(tmp_path):
     assert result["error"].startswith("no revision " + "0" * 40)
 
 
+def test_bad_arguments_are_refused_in_one_line_before_any_run(capsys):
+    assert bm.main(["--repeat", "0"]) == 2
+    assert bm.main(["-p", "adaptive_impedance.no_such_gain=1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith("cr_benchmark: ") for line in err)
+    assert "no_such_gain" in err[1]
+    assert bm.build_parser().parse_args(["-p", "adaptive_impedance.diagnostics_every=1"]).set == [
+        "adaptive_impedance.diagnostics_every=1"]
+
+
 def test_median_of_repeats_keeps_each_repeat_and_errors():
     figs = [{"rate_hz": 990.0, "fresh_diff_pp": -3.0, "cpu_per_process_pct": {"plant": 40.0}, "logs": "a"},
             {"rate_hz": 995.0, "fresh_diff_pp": -1.0, "cpu_per_process_pct": {"plant": 50.0}, "logs": "b"},

@@ -83,7 +83,14 @@ from cr_control.core.ros_env import (
     isolated_env,
 )
 from cr_control.tools.echo_pair import parse_result
-from cr_control.tools.session import STARTUP_TIMEOUT_S, ProcessGroup, Session, SessionConfig, SessionError
+from cr_control.tools.session import (
+    STARTUP_TIMEOUT_S,
+    ProcessGroup,
+    Session,
+    SessionConfig,
+    SessionError,
+    session_parameters,
+)
 
 SCHEME = "adaptive_impedance"
 #: CPU used by other processes (% of one core) above which a run is flagged as disturbed.
@@ -932,12 +939,15 @@ def _time_breakdown(listener: Listener | None, controller: bool) -> dict[str, An
 
 
 def run_session(title: str, domain: int, out: Path, duration: float, mode: str, composed: bool,
-                progress: Progress, compute_time: bool, record: bool = False) -> dict[str, Any]:
+                progress: Progress, compute_time: bool, record: bool = False,
+                overrides: Sequence[str] = ()) -> dict[str, Any]:
     """One session (with the recorder as ``make demo`` runs it if ``record``); its loop, CPU,
-    time breakdown and, recorded, the recorder's CPU per message."""
+    time breakdown and, recorded, the recorder's CPU per message. ``overrides``: cr_session's
+    ``NODE.PARAM=VALUE`` settings."""
     progress.begin(title)
     name = re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
     session = Session(SessionConfig(scheme=SCHEME, duration=duration, mode=mode, composed=composed,
+                                    overrides=list(overrides),
                                     record=record, out=out, domain_id=domain, name=name), progress=progress)
     listener = None
     fig: dict[str, Any] = {"domain_id": domain, "logs": str(session.logs), "recorder": record}
@@ -1257,6 +1267,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=int, default=1,
                    help="session/echo pairs per layout, in ABBA order; the tables and targets show "
                         "the median over the pairs, the spread is printed (default 1)")
+    p.add_argument("-p", "--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
+                   help="a parameter of the sessions, as cr_session's -p (e.g. "
+                        f"{SCHEME}.diagnostics_every=10); the echo pairs stay as they are")
     p.add_argument("--json", type=Path, help="also write every figure to this JSON file")
     p.add_argument("--out", type=Path, help="directory for the runs' logs (default: a new temp dir)")
     p.add_argument("--skip-offline", action="store_true", help="no offline-loop speed")
@@ -1290,6 +1303,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeat < 1:
         print("cr_benchmark: --repeat must be >= 1", file=sys.stderr)
         return 2
+    try:  # a setting no node would take is refused before any run starts
+        session_parameters(SessionConfig(scheme=SCHEME, overrides=args.set), Path(os.devnull))
+    except SessionError as exc:
+        print(f"cr_benchmark: {exc}", file=sys.stderr)
+        return 2
     out = args.out or Path(tempfile.mkdtemp(prefix="cr_benchmark-"))
     out.mkdir(parents=True, exist_ok=True)
     domains = claimed_domains(args.domain_base)
@@ -1322,7 +1340,8 @@ def main(argv: list[str] | None = None) -> int:
 
                     def session_run(tag=tag, composed=composed, record=record, title=session_title):
                         return run_session(title + tag, next(domains), out, args.duration, "realtime",
-                                           composed, progress, compute, record=record)
+                                           composed, progress, compute, record=record,
+                                           overrides=args.set)
 
                     def echo_run(tag=tag, composed=composed, record=record, title=echo_title):
                         return run_echo(title + tag, next(domains), out, args.duration, composed, progress,
@@ -1348,7 +1367,8 @@ def main(argv: list[str] | None = None) -> int:
                 for layout, composed in layouts:
                     title = f"lockstep {layout}"
                     speeds.append((title, run_session(title, next(domains), out, args.lockstep_duration,
-                                                      "lockstep", composed, progress, False)))
+                                                      "lockstep", composed, progress, False,
+                                                      overrides=args.set)))
             if not args.skip_offline:
                 speeds.append(("offline loop (no ROS)",
                                run_offline(args.lockstep_duration, progress)))
@@ -1383,7 +1403,8 @@ def main(argv: list[str] | None = None) -> int:
 
     print()
     print(f"cr_benchmark: {SCHEME}, real-time runs {args.duration:g} s at 1 kHz, "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, took {total:.0f} s")
+          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}, took {total:.0f} s"
+          + (f"; sessions with {' '.join(args.set)}" if args.set else ""))
     print(f"calibration: {calibration['start']['loop_ns']:.1f} / {calibration['end']['loop_ns']:.1f} ns "
           f"per plain Python loop iteration (start / end of the run), "
           f"{fmt(calibration['start']['aba_us'], '.2f')} / {fmt(calibration['end']['aba_us'], '.2f')} us "
@@ -1421,7 +1442,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         report = {
             "scheme": SCHEME, "duration_s": args.duration, "lockstep_duration_s": args.lockstep_duration,
-            "repeat": args.repeat,
+            "repeat": args.repeat, "session_settings": args.set,
             "cpu_count": os.cpu_count(), "total_s": total, "calibration": calibration,
             "reference_loop_ns": REFERENCE_LOOP_NS, "reference": reference, "issue_before": ISSUE_BEFORE,
             "realtime": {title: fig for title, fig in realtime},
