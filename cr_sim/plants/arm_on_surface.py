@@ -168,7 +168,7 @@ def arm_on_surface_step(chain, surface, disturbance, t, x, tau, command, dt, sub
 
 class ArmOnSurface(Plant):
     """A planar arm from the URDF pressing a packed compliant surface; scenario modules give
-    the surface, the initial state and the defaults."""
+    the surface, the initial state and the defaults. State x = [q, q']."""
 
     command_interface = "effort"
 
@@ -209,15 +209,6 @@ class ArmOnSurface(Plant):
         self._x = np.concatenate([np.asarray(q0, dtype=float),
                                   np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)])
         _sensors(self.chain, self.surface, self._x, self.sensors)
-
-    @property
-    def time(self) -> float:
-        return self._t
-
-    @property
-    def state(self) -> np.ndarray:
-        """[q, q'] (true, noise-free)."""
-        return self._x.copy()
 
     def contact_force(self) -> np.ndarray:
         """Force of the surface on the end effector now (2 components)."""

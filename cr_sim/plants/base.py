@@ -64,7 +64,15 @@ def take_command(held, command):
 
 
 class Plant(ABC):
-    """A simulated robot and its environment, stepped with a held command."""
+    """A simulated robot and its environment, stepped with a held command.
+
+    A plant keeps its simulation time in ``_t`` (s) and its true (noise-free) state vector
+    in ``_x`` (layout in the plant's own docstring); :attr:`time` and :attr:`state` read
+    them.
+    """
+
+    _t: float
+    _x: np.ndarray
 
     #: Names of the joints, in the order of every state vector the plant gives.
     joint_names: tuple[str, ...]
@@ -94,9 +102,14 @@ class Plant(ABC):
         """The current sensor readings."""
 
     @property
-    @abstractmethod
     def time(self) -> float:
         """Simulation time (s)."""
+        return self._t
+
+    @property
+    def state(self) -> np.ndarray:
+        """The true (noise-free) state vector, a copy."""
+        return self._x.copy()
 
     #: Names of extra measurements a plant offers beyond the joint state and the wrench
     #: (published by the plant node on topics.PLANT_SENSORS, labelled); none by default.

@@ -200,7 +200,8 @@ def surface_angle(length, normal: np.ndarray, offset: float, theta1: float,
 
 class FlexibleJointSurface(Plant):
     """The constrained flexible-joint arm of chapter 6: links on a rigid surface, motors
-    behind elastic joints; the commands are the two motor torques."""
+    behind elastic joints; the commands are the two motor torques. State
+    x = [q_l, q_l', q_m, q_m'] (8)."""
 
     command_interface = "effort"
     joint_names = (*LINK_JOINTS, *MOTOR_JOINTS)
@@ -297,15 +298,6 @@ class FlexibleJointSurface(Plant):
         # a zero-length step: evaluates the sensors (and loads the compiled kernel)
         flexible_joint_step(self.mech, self.flex, self._x, self._held, self._none, 0.0, 1,
                             self._work, self._buf, self._sensors)
-
-    @property
-    def time(self) -> float:
-        return self._t
-
-    @property
-    def state(self) -> np.ndarray:
-        """x = [q_l, q_l', q_m, q_m'] (8; true, noise-free)."""
-        return self._x.copy()
 
     @property
     def held(self) -> np.ndarray:

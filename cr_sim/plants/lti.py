@@ -72,15 +72,6 @@ class LTIPlant(Plant):
         self._t = 0.0
 
     @property
-    def time(self) -> float:
-        return self._t
-
-    @property
-    def state(self) -> np.ndarray:
-        """The true (noise-free) state x."""
-        return self._x.copy()
-
-    @property
     def held(self) -> np.ndarray:
         """The input held now."""
         return self._held.copy()

@@ -111,7 +111,8 @@ def build_moving_object_model(values: dict) -> pin.Model:
 
 
 class MovingObjectPlant(Plant):
-    """The closed chain of fig. 2.3: arm + prismatic object axis + contact constraint."""
+    """The closed chain of fig. 2.3: arm + prismatic object axis + contact constraint.
+    State x = [q, q'] (joints 1, 2 and the object's axis)."""
 
     command_interface = "effort"
 
@@ -182,15 +183,6 @@ class MovingObjectPlant(Plant):
         acc = np.empty(3)
         self._phi[:] = mechanism_dynamics_into(self.mech, self._x[:3], self._x[3:], self._effort,
                                                self._work, acc, self._lam)
-
-    @property
-    def time(self) -> float:
-        return self._t
-
-    @property
-    def state(self) -> np.ndarray:
-        """[q, q'] (true, noise-free)."""
-        return self._x.copy()
 
     #: lambda itself (2.11-2.13), and the constraint drift (Baumgarte, 2.94).
     sensor_fields = ("lambda", "phi", "phi_dot")
