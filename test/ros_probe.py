@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
+import subprocess
 import time
 from collections.abc import Callable
 
@@ -12,6 +14,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from cr_control.core import topics
 from cr_control.core.ros_env import DomainLock, claim_free_domain
 
 #: Tests take domain ids in 51..100 (sessions 1..50: a test never meets a session).
@@ -87,3 +90,26 @@ def recorded_arrays(mcap, topic: str) -> list[tuple[list[str], list[float]]]:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         return [(m.layout.dim[0].label.split(","), list(m.data))
                 for _, _, _, m in reader.iter_decoded_messages(topics=[topic])]
+
+
+def start_node(cmd: list[str], env: dict[str, str], *ros_args: str) -> subprocess.Popen:
+    """A node process (``cmd``, then ``--ros-args`` and ``ros_args`` if any), output captured."""
+    args = [*cmd, "--ros-args", *ros_args] if ros_args else cmd
+    return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def stop_node(proc: subprocess.Popen, sig: int = signal.SIGINT, timeout: float = 15.0) -> tuple[int, str]:
+    """Signal ``proc`` (if still running); its exit code and output (killed after ``timeout``)."""
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return proc.returncode, out
+
+
+def timing_field(msg, name: str) -> float:
+    """A field of a labelled timing/status array message, by name."""
+    return msg.data[topics.fields_of(msg.layout.dim[0].label).index(name)]

@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_probe import RosProbe, next_domain
+from ros_probe import RosProbe, next_domain, start_node, stop_node, timing_field
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
@@ -31,26 +31,6 @@ QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 PLANT = [sys.executable, "-m", "cr_sim.plant_node"]
 CONTROLLER = [sys.executable, "-m", "cr_control.nodes.controller_node"]
 LOCKSTEP_S = 4.0
-
-
-def start(cmd, env):
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-
-def stop(proc, timeout=15.0):
-    """SIGINT ``proc`` (if still running); its exit code and output."""
-    if proc.poll() is None:
-        proc.send_signal(2)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return proc.returncode, out
-
-
-def timing_field(msg, name):
-    return msg.data[topics.fields_of(msg.layout.dim[0].label).index(name)]
 
 
 @pytest.fixture
@@ -78,13 +58,13 @@ def test_controller_refuses_a_plant_of_the_other_interface(scheme, scenario, mod
     node.create_subscription(JointState, topics.JOINT_COMMANDS, commands.append, QOS)
     node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, timing.append, QOS)
     node.create_subscription(String, topics.PLANT_COMMAND_INTERFACE, interface.append, READY_QOS)
-    plant = start([*PLANT, "--ros-args", "-p", f"scenario:={scenario}", "-p", f"mode:={mode}"],
+    plant = start_node([*PLANT, "--ros-args", "-p", f"scenario:={scenario}", "-p", f"mode:={mode}"],
                   ros_env)
-    controller = start([*CONTROLLER, scheme], ros_env)
+    controller = start_node([*CONTROLLER, scheme], ros_env)
     try:
         assert probe.spin_until(lambda: controller.poll() is not None, timeout=90), \
             "the controller did not exit"
-        code, out = stop(controller)
+        code, out = stop_node(controller)
         assert code == 1, out[-3000:]
         assert out.count(message) == 1, out[-3000:]
         assert probe.spin_until(lambda: interface, timeout=20), "the plant advertised nothing"
@@ -98,8 +78,8 @@ def test_controller_refuses_a_plant_of_the_other_interface(scheme, scenario, mod
         assert commands == []
         assert plant.poll() is None
     finally:
-        stop(controller)
-        code, plant_out = stop(plant)
+        stop_node(controller)
+        code, plant_out = stop_node(plant)
     assert "refused a command" not in plant_out, plant_out[-3000:]
 
 
@@ -152,7 +132,7 @@ def test_plant_refuses_commands_in_the_wrong_field(scenario, joints, wrong, righ
     node.create_subscription(JointState, topics.JOINT_STATES, states.append, QOS)
     node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, timing.append, QOS)
     pub = node.create_publisher(JointState, topics.JOINT_COMMANDS, QOS)
-    plant = start([*PLANT, "--ros-args", "-p", f"scenario:={scenario}",
+    plant = start_node([*PLANT, "--ros-args", "-p", f"scenario:={scenario}",
                    "-p", "watchdog_reaction:=disabled"], ros_env)
     try:
         assert probe.spin_until(lambda: len(states) > 10, timeout=60), "plant never started"
@@ -172,14 +152,14 @@ def test_plant_refuses_commands_in_the_wrong_field(scenario, joints, wrong, righ
         if scenario == "dynamic_constraint":     # servo force k (delta_c - delta) != 0
             assert abs(states[-1].effort[0]) > 0.1
     finally:
-        code, out = stop(plant)
+        code, out = stop_node(plant)
     assert why in out, out[-3000:]
 
 
 def test_empty_list_in_a_params_file_starts_the_node(ros_env):
     """``theta_hat_0: []`` (the shipped cmmsd_backstepping.yaml, every session's params.yaml):
     rcl cannot type an empty YAML list; the controller node reads it as an empty vector."""
-    proc = start([*CONTROLLER, "cmmsd_backstepping", "--ros-args", "--params-file",
+    proc = start_node([*CONTROLLER, "cmmsd_backstepping", "--ros-args", "--params-file",
                   str(config_file("cmmsd_backstepping.yaml"))], ros_env)
     deadline = time.monotonic() + 60
     out = ""
@@ -188,7 +168,7 @@ def test_empty_list_in_a_params_file_starts_the_node(ros_env):
         if "parameters, commanding" in (out := out + (proc.stdout.readline() or "")):
             time.sleep(1.0)         # spinning by now: SIGINT ends it quietly
             break
-    code, rest = stop(proc)
+    code, rest = stop_node(proc)
     out += rest
     assert "commanding ['q1', 'q2'] (effort)" in out, out[-3000:]
     assert "refused to start" not in out and code == 0, out[-3000:]

@@ -2,7 +2,6 @@
 
 import itertools
 import math
-import signal
 import subprocess
 import sys
 
@@ -11,7 +10,7 @@ import pytest
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_probe import RosProbe, next_domain
+from ros_probe import RosProbe, next_domain, stop_node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -35,11 +34,7 @@ def controller():
     state_pub = probe.node.create_publisher(JointState, topics.JOINT_STATES, QOS)
     yield probe, proc, state_pub, commands, status
     probe.close()
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+    stop_node(proc, timeout=10)
 
 
 def double_array(values):
@@ -202,9 +197,7 @@ def test_position_scheme_checks_the_advertised_interface(ros_env):
         assert probe.spin_until(lambda: proc.poll() is not None, timeout=30), "did not exit"
     finally:
         probe.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=15)
+        _, out = stop_node(proc)
     assert proc.returncode == 1, out[-3000:]
     assert out.count("backstepping_force commands positions but the plant takes efforts: "
                      "refusing to drive it") == 1, out[-3000:]

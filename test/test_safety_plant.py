@@ -16,7 +16,7 @@ from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from ros_probe import RosProbe
+from ros_probe import RosProbe, start_node, stop_node, timing_field
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -102,27 +102,6 @@ def test_damping_only_brakes_let_the_plane_push_the_arm_away():
 
 
 # -- over ROS --------------------------------------------------------------------------
-def start(cmd, env, *ros_args):
-    args = [*cmd, "--ros-args", *ros_args] if ros_args else cmd
-    return subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-
-def stop(proc, sig=signal.SIGINT, timeout=15.0):
-    """Signal ``proc``; its exit code and output."""
-    if proc.poll() is None:
-        proc.send_signal(sig)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return proc.returncode, out
-
-
-def timing_field(msg, name):
-    return msg.data[topics.fields_of(msg.layout.dim[0].label).index(name)]
-
-
 def bool_param(name, value):
     return Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_BOOL,
                                                      bool_value=value))
@@ -146,8 +125,8 @@ def test_killed_controller_leads_to_a_safe_stop_and_the_arm_stays_put(ros_env, p
     # Raw (undecoded) states: the probe must keep up with 1 kHz on a loaded machine.
     node.create_subscription(JointState, topics.JOINT_STATES, raw.append, QOS, raw=True)
     node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, timing.append, QOS)
-    plant = start(PLANT, ros_env, "-p", f"watchdog_missed_cycles:={missed}")
-    controller = start(CONTROLLER, ros_env)
+    plant = start_node(PLANT, ros_env, "-p", f"watchdog_missed_cycles:={missed}")
+    controller = start_node(CONTROLLER, ros_env)
     try:
         # Running under control for a while.
         assert probe.spin_until(lambda: len(raw) > 1500, timeout=60), "session never ran"
@@ -199,8 +178,8 @@ def test_killed_controller_leads_to_a_safe_stop_and_the_arm_stays_put(ros_env, p
         got = probe.call(GetParameters, "/plant/get_parameters", GetParameters.Request(names=["resume"]))
         assert got.values[0].bool_value is False
     finally:
-        code, out = stop(plant)
-        stop(controller, signal.SIGKILL)
+        code, out = stop_node(plant)
+        stop_node(controller, signal.SIGKILL)
     assert out.count("SAFE STOP:") == 1 and "resumed from safe stop" in out, out[-3000:]
     assert "Traceback" not in out and "FATAL" not in out
 
@@ -214,7 +193,7 @@ def test_rogue_commands_are_clipped_or_refused_and_counted(ros_env, probe):
     node.create_subscription(JointState, topics.JOINT_STATES, states.append, QOS)
     node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, timing.append, QOS)
     rogue = node.create_publisher(JointState, topics.JOINT_COMMANDS, QOS)
-    plant = start(PLANT, ros_env, "-p", "watchdog_reaction:=disabled")
+    plant = start_node(PLANT, ros_env, "-p", "watchdog_reaction:=disabled")
     try:
         assert probe.spin_until(lambda: len(states) > 10, timeout=60), "plant never started"
 
@@ -244,7 +223,7 @@ def test_rogue_commands_are_clipped_or_refused_and_counted(ros_env, probe):
         assert list(states[-1].effort) == [-0.5, 0.5]                 # reordered by name
         assert np.abs(np.array([s.velocity for s in states])).max() < 10.0   # URDF limit
     finally:
-        code, out = stop(plant)
+        code, out = stop_node(plant)
     assert out.count("publishers on /joint_commands") == 1
     assert out.count("publishers on /joint_states") == 1
 
@@ -283,10 +262,10 @@ def test_bad_params_file_for_a_controller(tmp_path, ros_env):
 
 def test_ctrl_c_of_a_running_plant_is_quiet(ros_env):
     """Issue 7: 4 of 8 SIGINTs printed [FATAL] Exception in 'timers' callback."""
-    controller = start(CONTROLLER, ros_env)
+    controller = start_node(CONTROLLER, ros_env)
     try:
         for _ in range(4):
-            plant = start(PLANT, ros_env)
+            plant = start_node(PLANT, ros_env)
             deadline = time.monotonic() + 30
             lines = []
             while time.monotonic() < deadline:
@@ -295,10 +274,10 @@ def test_ctrl_c_of_a_running_plant_is_quiet(ros_env):
                 if "controller connected" in line or not line:
                     break
             time.sleep(0.5 + 0.1 * len(lines) % 3)
-            code, out = stop(plant)
+            code, out = stop_node(plant)
             out = "".join(lines) + out
             assert "controller connected" in out
             assert code == 0 and "FATAL" not in out and "Traceback" not in out, out[-2000:]
     finally:
-        stop(controller)
+        stop_node(controller)
 
