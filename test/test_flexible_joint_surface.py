@@ -182,6 +182,13 @@ def test_motor_acceleration_sensor():
     assert p.sensors()[0] == p.constraint_force and p.sensors()[1:3] == list(p.constraint_error)
 
 
+def test_a_constrained_plant_must_sense_lambda_and_the_drift_first():
+    from cr_sim.plants.base import ConstrainedPlant
+
+    with pytest.raises(TypeError, match="begin with lambda, phi, phi_dot"):
+        type("Unsensed", (ConstrainedPlant,), {"sensor_fields": ("phi", "lambda", "phi_dot")})
+
+
 def test_refused_commands_keep_the_held_one():
     a, b = plant(), plant()
     tau = a.held + np.array([0.2, 0.1])

@@ -214,3 +214,26 @@ class CommandLimiter:
         """``values`` clipped into the bounds only (no rate limit, not counted): brakes."""
         return [min(max(float(x), lo), hi) for x, lo, hi in zip(values, self.lower, self.upper,
                                                                   strict=True)]
+
+
+class ConstrainedPlant(Plant):
+    """A plant held on a holonomic constraint Phi(q) = 0 (chapter 2): its first sensors
+    are lambda (2.11-2.13) and the drift Phi, Phi' (Baumgarte, 2.94), read back here."""
+
+    sensor_fields: tuple[str, ...] = ("lambda", "phi", "phi_dot")
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if tuple(cls.sensor_fields[:3]) != ("lambda", "phi", "phi_dot"):
+            raise TypeError(f"{cls.__name__}: a constrained plant's sensors begin with lambda, phi, phi_dot")
+
+    @property
+    def constraint_force(self) -> float:
+        """lambda (N): the contact force along the constraint normal (> 0: pressing)."""
+        return self.sensors()[0]
+
+    @property
+    def constraint_error(self) -> tuple[float, float]:
+        """(Phi (m), Phi' (m/s)) now."""
+        phi, phi_dot = self.sensors()[1:3]
+        return phi, phi_dot

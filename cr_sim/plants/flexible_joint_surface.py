@@ -73,7 +73,7 @@ from cr_sim.models.constrained_dynamics import (
     planar_mechanism,
 )
 from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS, arm_parameters
-from cr_sim.plants.base import JointLimits, Measurement, Plant, take_command
+from cr_sim.plants.base import ConstrainedPlant, JointLimits, Measurement, take_command
 
 NAME = "flexible_joint_surface"
 LINK_JOINTS = ("joint1", "joint2")
@@ -198,7 +198,7 @@ def surface_angle(length, normal: np.ndarray, offset: float, theta1: float,
     return min(roots, key=lambda t2: abs(t2 - theta2))
 
 
-class FlexibleJointSurface(Plant):
+class FlexibleJointSurface(ConstrainedPlant):
     """The constrained flexible-joint arm of chapter 6: links on a rigid surface, motors
     behind elastic joints; the commands are the two motor torques. State
     x = [q_l, q_l', q_m, q_m'] (8)."""
@@ -306,16 +306,6 @@ class FlexibleJointSurface(Plant):
 
     def sensors(self) -> list[float]:
         return [float(v) for v in self._sensors]
-
-    @property
-    def constraint_force(self) -> float:
-        """lambda (N): the normal contact force on the end effector (> 0: pressing)."""
-        return float(self._sensors[0])
-
-    @property
-    def constraint_error(self) -> tuple[float, float]:
-        """(Phi (m), Phi' (m/s)) now."""
-        return float(self._sensors[1]), float(self._sensors[2])
 
     @property
     def motor_acceleration(self) -> np.ndarray:

@@ -54,7 +54,7 @@ from cr_sim.models.constrained_dynamics import (
     planar_mechanism,
 )
 from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS, arm_parameters
-from cr_sim.plants.base import Measurement, Plant
+from cr_sim.plants.base import ConstrainedPlant, Measurement
 
 NAME = "moving_object"
 URDF_NAME = "moving_object.urdf"
@@ -110,7 +110,7 @@ def build_moving_object_model(values: dict) -> pin.Model:
     return model
 
 
-class MovingObjectPlant(Plant):
+class MovingObjectPlant(ConstrainedPlant):
     """The closed chain of fig. 2.3: arm + prismatic object axis + contact constraint.
     State x = [q, q'] (joints 1, 2 and the object's axis)."""
 
@@ -184,21 +184,8 @@ class MovingObjectPlant(Plant):
         self._phi[:] = mechanism_dynamics_into(self.mech, self._x[:3], self._x[3:], self._effort,
                                                self._work, acc, self._lam)
 
-    #: lambda itself (2.11-2.13), and the constraint drift (Baumgarte, 2.94).
-    sensor_fields = ("lambda", "phi", "phi_dot")
-
     def sensors(self) -> list[float]:
         return [float(self._lam[0]), float(self._phi[0]), float(self._phi[1])]
-
-    @property
-    def constraint_force(self) -> float:
-        """lambda (N): the contact force along n_c on the end effector."""
-        return float(self._lam[0])
-
-    @property
-    def constraint_error(self) -> tuple[float, float]:
-        """(Phi (m), Phi' (m/s)) now."""
-        return float(self._phi[0]), float(self._phi[1])
 
     def step(self, command: np.ndarray, dt: float) -> None:
         """Advance by dt with the efforts ``command`` held (a refused command keeps the last)."""
