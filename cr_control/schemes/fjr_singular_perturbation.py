@@ -271,11 +271,7 @@ def fjr_singular_perturbation_cycle(gains, state, t, dt, q, v, force, out):
         y[i] = gains[_KS + i] * (q_m[i] - q_l[i]) + J_phi[i] * lam
 
     # errors (6.75-6.77)
-    e = np.empty(2)
-    e_dot = np.empty(2)
-    for i in range(2):
-        e[i] = qjet[0, i] - q_l[i]
-        e_dot[i] = qjet[1, i] - v_l[i]
+    e, e_dot = qjet[0] - q_l, qjet[1] - v_l
     r = np.empty(2)
     qr_dot = np.empty(2)
     qr_ddot = np.empty(2)
@@ -365,11 +361,7 @@ def fjr_singular_perturbation_cycle(gains, state, t, dt, q, v, force, out):
     # desired motor motion with the (updated) p_hat (6.65-6.67) and its errors (6.73-6.74)
     md = np.empty((3, 2))
     desired_motor(gains, Psi_jets, f_jets, qjet, p_hat, md)
-    e_m = np.empty(2)
-    e_m_dot = np.empty(2)
-    for i in range(2):
-        e_m[i] = md[0, i] - q_m[i]
-        e_m_dot[i] = md[1, i] - v_m[i]
+    e_m, e_m_dot = md[0] - q_m, md[1] - v_m
 
     # slow control (6.102)
     tau_s = np.zeros(2)
