@@ -3,6 +3,11 @@
 - ``realtime``: a wall-clock timer at ``rate_hz``; each tick integrates the wall time
   elapsed since the last one (in whole periods, the remainder carried to the next tick)
   with the latest command held, then publishes the state stamped with the wall clock.
+  A command that answers the latest state integrates its first period as soon as it
+  arrives ("stepped ahead"): the tick then only publishes, so the state leaves on the
+  tick, not a plant step later, and the controller's whole period is left for the round
+  trip. The physics are the same (the command is held from the state it answers, as
+  before); a second, different command for the same state takes effect a period later.
 - ``lockstep``: publishes a state (and /clock) and steps one period only when the
   command computed from that state arrives: deterministic, faster than real time.
 
@@ -213,6 +218,8 @@ class PlantNode(Node):
         self._t0_wall = 0.0
         self._last_tick = 0.0
         self._carry = 0.0          # realtime: wall time not yet simulated (s)
+        self._stepped_ahead = False  # realtime: the next tick's first period is integrated
+        self._ahead_time = 0.0     # ... and took this long (s)
         self._last_publish_wall = 0.0
 
         self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, PUBLISH_QOS)
@@ -407,8 +414,12 @@ class PlantNode(Node):
             return                          # braking until resumed
         self._command_list = limited
         self.command = np.array(limited)
-        if self.lockstep and self._started and key == self.state_stamp and not self.finished.done():
+        if key != self.state_stamp or not self._started or self.finished.done():
+            return
+        if self.lockstep:
             self._lockstep_step()
+        elif not self._stepped_ahead:
+            self._step_ahead()
 
     # -- stepping -------------------------------------------------------------------
     def _lockstep_step(self) -> None:
@@ -419,6 +430,14 @@ class PlantNode(Node):
             self._finish()
             return
         self._publish_state(*divmod(int(round(self.plant.time * 1e9)), 1_000_000_000))
+
+    def _step_ahead(self) -> None:
+        """Realtime: integrate the coming tick's first period with the command that just
+        answered the latest state (the tick then publishes at once)."""
+        start = time.perf_counter()
+        self.plant.step(self.command, self.period)
+        self._stepped_ahead = True
+        self._ahead_time = time.perf_counter() - start
 
     def _resend_if_stalled(self) -> None:
         if self.finished.done() or self.state_stamp is None:
@@ -474,12 +493,13 @@ class PlantNode(Node):
         due = elapsed + self._carry
         substeps = max(1, round(due / self.period))
         self._carry = max(due - substeps * self.period, -self.period)
-        for _ in range(substeps):
+        ahead, self._stepped_ahead = self._stepped_ahead, False
+        for _ in range(substeps - ahead):
             if self.safe_stop:                           # brakes act on every substep
                 self._command_list = self.limiter.bound(self.plant.safe_stop_command())
                 self.command = np.array(self._command_list)
             self.plant.step(self.command, self.period)
-        self.stats.cycle(fresh, time.perf_counter() - start)
+        self.stats.cycle(fresh, time.perf_counter() - start + (self._ahead_time if ahead else 0.0))
         if self._out_of_time():
             self._finish()
             return

@@ -1,0 +1,100 @@
+"""The realtime plant node's stepping, driven callback by callback (no spinning, no clock
+waits): a command that answers the latest state integrates its period on arrival, the
+tick then only publishes, and the states are exactly those of stepping the plant with
+the commands the node applied."""
+
+import os
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from sensor_msgs.msg import JointState
+
+from cr_sim.plant_node import PlantNode
+from cr_sim.plants.registry import SCENARIOS
+
+PERIOD = 1e-3
+
+
+@pytest.fixture
+def node():
+    context = Context()
+    rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    plant_node = PlantNode(context=context)
+    plant_node._started = True
+    yield plant_node
+    plant_node.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def reference_plant():
+    """A second plant of the node's default scenario, with default parameters."""
+    specs, factory = SCENARIOS["compliant_plane"]
+    return factory({p.name: p.default for p in specs})
+
+
+def tick(node: PlantNode, periods: int) -> None:
+    """Run the node's tick as if ``periods`` periods of wall time had passed."""
+    node._last_tick = time.monotonic() - periods * PERIOD
+    node._tick()
+
+
+def answer(node: PlantNode, effort: list[float], stamp: int | None = None) -> None:
+    """Deliver a command stamped like the latest state (or ``stamp``, ns)."""
+    msg = JointState(name=list(node.command_names), effort=effort)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
+        node.state_stamp if stamp is None else stamp, 1_000_000_000)
+    node._on_command(msg)
+
+
+def test_an_answer_steps_on_arrival_and_the_tick_only_publishes(node):
+    ref = reference_plant()
+    tick(node, 1)                                  # first state, with the initial command
+    ref.step(node.command.copy(), PERIOD)
+    first = node.state_stamp
+    assert node.plant.time == pytest.approx(PERIOD)
+
+    answer(node, [0.5, -0.3])
+    assert node.plant.time == pytest.approx(2 * PERIOD)   # integrated on arrival
+    ref.step(node.command.copy(), PERIOD)
+    assert node.state_stamp == first                       # ... but not yet published
+
+    answer(node, [0.7, -0.1])                      # a second answer to the same state
+    assert node.plant.time == pytest.approx(2 * PERIOD)   # no second step ahead
+    second_command = node.command.copy()
+
+    tick(node, 1)                                  # publishes the state integrated ahead
+    assert node.plant.time == pytest.approx(2 * PERIOD)
+    assert node.state_stamp != first
+    np.testing.assert_array_equal(node.plant.state, ref.state)
+    assert node.stats.total_fresh == 1
+
+    tick(node, 1)                                  # no answer: the held (second) command
+    ref.step(second_command, PERIOD)
+    assert node.plant.time == pytest.approx(3 * PERIOD)
+    np.testing.assert_array_equal(node.plant.state, ref.state)
+    assert node.stats.total_cycles == 3 and node.stats.total_fresh == 1
+
+
+def test_a_late_tick_integrates_the_rest_and_a_stale_answer_waits_for_the_tick(node):
+    ref = reference_plant()
+    tick(node, 1)
+    ref.step(node.command.copy(), PERIOD)
+
+    answer(node, [0.4, 0.2])
+    applied = node.command.copy()
+    tick(node, 3)                                  # late: three periods, one done ahead
+    for _ in range(3):
+        ref.step(applied, PERIOD)
+    assert node.plant.time == pytest.approx(4 * PERIOD)
+    np.testing.assert_array_equal(node.plant.state, ref.state)
+
+    stale = node.state_stamp - 1_000_000           # answers no published state
+    answer(node, [0.6, 0.1], stamp=stale)
+    assert node.plant.time == pytest.approx(4 * PERIOD)   # applied, but not ahead
+    tick(node, 1)
+    ref.step(node.command.copy(), PERIOD)
+    np.testing.assert_array_equal(node.plant.state, ref.state)
+    assert node.stats.total_fresh == 1
