@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from cr_control.core.parameters import resolve
-from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, ControlOutput
+from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, ControlOutput, admit_state
 from cr_control.schemes.registry import make_controller
 from cr_sim.plants.registry import make_plant
 
@@ -193,3 +193,52 @@ def test_repeated_faults_are_logged_rate_limited():
     for k in range(1000):
         ctl.step(k * PERIOD, np.array([math.nan, 0.0]), np.zeros(2), np.zeros(3))
     assert ctl.held_cycles == 1000 and len(warned) == 1
+
+
+def test_faults_in_a_row_keep_the_last_accepted_output_intact(running):
+    """The kernel writes into the spare of two output vectors: cycles refused one after
+    another must not overwrite the accepted cycle the held command comes from."""
+    ctl, plant, held = running
+    m = plant.measurement()
+    good = ctl.step(m.time + PERIOD, m.position, m.velocity, m.force)
+    kept = (good.command.copy(), good.reference.copy(), good.status.copy())
+    compute = ctl.compute
+
+    def poisoned(*args):
+        out = compute(*args)
+        ctl.internal[0] = np.nan
+        return out
+
+    ctl.compute = poisoned
+    for k in range(2, 5):
+        out = ctl.step(m.time + k * PERIOD, m.position, m.velocity, m.force)
+        assert value(ctl, out, "held") == 1.0
+        assert np.array_equal(out.command, kept[0])
+        assert np.array_equal(good.command, kept[0]) and np.array_equal(good.reference, kept[1])
+    assert ctl.restored_cycles == 3
+    ctl.compute = compute
+    again = ctl.step(m.time + 5 * PERIOD, m.position, m.velocity, m.force)
+    assert value(ctl, again, "held") == 0.0 and np.isfinite(again.command).all()
+
+
+@pytest.mark.parametrize("q, v, force, admitted", [
+    ([0.3, 1.2], [0.1, -0.2], [0.0, 5.0, 0.0], True),
+    ([60.0, 80.0], [0.0, 0.0], [0.0, 0.0, 0.0], True),       # |q| = 100: on the bound
+    ([60.0, 80.1], [0.0, 0.0], [0.0, 0.0, 0.0], False),
+    ([0.0, 0.0], [1e200, 1e200], [0.0, 0.0, 0.0], False),    # no overflow warning
+    ([0.0, np.nan], [0.0, 0.0], [0.0, 0.0, 0.0], False),
+    ([0.0, 0.0], [0.0, 0.0], [0.0, -np.inf, 0.0], False),
+    ([0.0, 0.0, 0.0], [0.0, 0.0], [0.0, 0.0, 0.0], False),   # wrong size
+    ([0.0, 0.0], [0.0, 0.0], [0.0], False),                 # one force component
+])
+def test_admit_state_agrees_with_the_stated_rule(q, v, force, admitted):
+    """admit_state (compiled) against the rule of Controller.step written out in numpy."""
+    q, v, force = (np.array(x, dtype=float) for x in (q, v, force))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert admit_state(2, 100.0, 100.0, 0.5, q, v, force) is admitted
+        if q.shape == v.shape == (2,) and force.shape[0] >= 2:
+            with np.errstate(over="ignore"):
+                rule = bool(np.hypot(*q) <= 100.0 and np.hypot(*v) <= 100.0
+                            and np.isfinite(force).all())
+            assert rule is admitted

@@ -15,7 +15,7 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.schemes import impedance_adaptation as impedance
-from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
 from cr_control.schemes.impedance_adaptation import (
     ESTIMATE_FIELDS,
     ImpedanceAdaptation,
@@ -27,7 +27,6 @@ from cr_control.schemes.references import REFERENCE, packed_reference
 from cr_control.schemes.task_space import (
     TASK_SPACE_PARAMETERS,
     ArmTaskSpace,
-    KernelOutput,
     task_state,
     torque_for_acceleration,
     write_task_space,

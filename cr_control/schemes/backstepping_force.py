@@ -24,8 +24,8 @@ from numba import njit
 
 from cr_control.core.parameters import Param
 from cr_control.schemes import backstepping as bs
-from cr_control.schemes.controller import Controller, ControlOutput
-from cr_control.schemes.task_space import KernelOutput, split_output
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
+from cr_control.schemes.task_space import split_output
 
 SIZES = bs.Sizes(5, 2)
 N, P = SIZES.n, SIZES.p

@@ -5,7 +5,16 @@ scheme needs (issue 7, "Controller robustness"): physically absurd inputs are he
 NaN and the controller recovers on the next good state; integration steps are clamped
 to ``max_dt`` and a gap in stamps restarts the stepping instead of being integrated as
 one step; a non-finite internal state is restored; the status reports the command
-actually sent. It is the 1 kHz hot path: a handful of numpy calls per cycle.
+actually sent.
+
+It is the 1 kHz hot path, and in a node every state arrives after an idle spell, when
+every distinct piece of code runs several times slower than back to back (caches gone
+cold on this kind of virtual machine). So a cycle is three compiled calls and no numpy
+call from Python: :func:`admit_state` (the input checks), the scheme's kernel writing
+into one of two preallocated output vectors (:class:`KernelOutput`), and
+:func:`accept_cycle` (internal-state backup or restore, command checks and clipping).
+Measured after a 0.9 ms sleep: 118-134 us per step with the checks, allocation, views
+and backup done in Python and numpy, 51-62 us this way (README, "The hot path").
 """
 
 from __future__ import annotations
@@ -19,8 +28,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 
-from cr_control.core.linalg import all_finite
 from cr_control.core.parameters import Param
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 
@@ -53,6 +62,10 @@ COMMON_PARAMETERS = [
 #: Faults are logged at most this often (s); the count in between is reported.
 WARN_EVERY_S = 5.0
 
+#: Verdicts of :func:`accept_cycle`.
+ACCEPTED, INTERNAL_RESTORED, WRONG_COMMAND_SIZE, COMMAND_NOT_FINITE = 0, 1, 2, 3
+_NO_INTERNAL = np.zeros(0)
+
 _log = logging.getLogger("cr_control.controller")
 
 
@@ -63,6 +76,84 @@ class ControlOutput:
     command: np.ndarray
     reference: np.ndarray
     status: np.ndarray
+
+
+@njit(cache=True, error_model="numpy")
+def admit_state(n, max_q, max_v, stamp, q, v, force):
+    """Whether a state may reach the law: ``n`` joint positions and velocities (1-D
+    arrays) with Euclidean norms |q| <= max_q and |q'| <= max_v, at least two force
+    components, and a finite stamp and force. A NaN or inf anywhere fails a comparison."""
+    if q.shape[0] != n or v.shape[0] != n or force.shape[0] < 2:
+        return False
+    q2 = v2 = 0.0
+    for i in range(n):
+        q2 += q[i] * q[i]
+        v2 += v[i] * v[i]
+    total = stamp
+    for i in range(force.shape[0]):
+        total += force[i]
+    return math.sqrt(q2) <= max_q and math.sqrt(v2) <= max_v and math.isfinite(total)
+
+
+@njit(cache=True, error_model="numpy")
+def accept_cycle(n, max_effort, internal, good, command, status, command_slots):
+    """Judge a computed cycle; returns one of ACCEPTED, INTERNAL_RESTORED,
+    WRONG_COMMAND_SIZE, COMMAND_NOT_FINITE.
+
+    A non-finite ``internal`` is restored in place from ``good`` (its last finite value);
+    a finite one is copied into ``good``. A command of ``n`` finite values is clipped to
+    +-max_effort, and the clipped values are written to ``status[command_slots]``."""
+    for i in range(internal.shape[0]):
+        if not math.isfinite(internal[i]):
+            internal[:] = good
+            return INTERNAL_RESTORED
+    good[:] = internal
+    if command.shape[0] != n:
+        return WRONG_COMMAND_SIZE
+    for j in range(n):
+        if not math.isfinite(command[j]):
+            return COMMAND_NOT_FINITE
+    for j in range(n):
+        if command[j] > max_effort or command[j] < -max_effort:
+            command[j] = min(max(command[j], -max_effort), max_effort)
+            if command_slots.shape[0] == n:
+                status[command_slots[j]] = command[j]
+    return ACCEPTED
+
+
+class KernelOutput:
+    """The output vector a scheme's cycle kernel fills, from two preallocated ones: the
+    kernel writes the spare while the other keeps the last accepted cycle (a held
+    command refers to it), and :meth:`keep` swaps them once a cycle is accepted. A
+    :class:`ControlOutput` is valid until the second accepted cycle after it."""
+
+    def __init__(self, controller: Controller):
+        n_status = len(controller.status_fields) - 1
+        self.n = controller.n_joints
+        self.n_reference = len(controller.reference_fields) - 1
+        self.size = self.n + self.n_reference + n_status
+        #: Where the scheme's own status fields (``extra_status_fields``) start.
+        self.extras_at = n_status - len(controller.extra_status_fields)
+        self._vectors = (np.zeros(self.size), np.zeros(self.size))
+        self._views = tuple(self._split(vector) for vector in self._vectors)
+        self._spare = 0
+
+    def _split(self, out: np.ndarray) -> ControlOutput:
+        n, k = self.n, self.n + self.n_reference
+        return ControlOutput(out[:n], out[n:k], out[k:])
+
+    def new(self) -> np.ndarray:
+        """The output vector for this cycle (the spare one)."""
+        return self._vectors[self._spare]
+
+    def views(self, out: np.ndarray) -> ControlOutput:
+        """command, reference and status views of a filled output vector."""
+        spare = self._spare
+        return self._views[spare] if out is self._vectors[spare] else self._split(out)
+
+    def keep(self) -> None:
+        """The cycle just written was accepted: the other vector becomes the spare."""
+        self._spare ^= 1
 
 
 class Controller(ABC):
@@ -107,10 +198,14 @@ class Controller(ABC):
         self._i_compute = self.status_fields.index("compute_time_us") - 1
         self._i_held = self.status_fields.index("held") - 1
         names = self.command_status_fields or [f"tau_{i + 1}" for i in range(self.n_joints)]
-        self._command_slots = ([self.status_fields.index(f) - 1 for f in names]
-                               if all(f in self.status_fields for f in names) else None)
+        self._command_slots = np.array(
+            [self.status_fields.index(f) - 1 for f in names]
+            if all(f in self.status_fields for f in names) else [], dtype=np.int64)
         self.internal: np.ndarray | None = None
-        self._internal_good: np.ndarray | None = None
+        self._internal_good = _NO_INTERNAL
+        self._internal_of: np.ndarray | None = None      # the array _internal_good backs up
+        #: The scheme's output vectors (schemes set ``self._output = KernelOutput(self)``).
+        self._output: KernelOutput | None = None
         self._last: ControlOutput | None = None
         self._t0: float | None = None
         self._t_prev: float | None = None
@@ -188,21 +283,12 @@ class Controller(ABC):
         clipped command.
         """
         start = time.perf_counter()
-        n = self.n_state
         values = self.values
         out = None
-        reason = ""
-        if q.shape != (n,) or v.shape != (n,) or force.shape[0] < 2:
-            reason = f"state of the wrong size (q {q.shape}, v {v.shape}, force {force.shape})"
+        if not admit_state(self.n_state, values["max_joint_position"],
+                           values["max_joint_velocity"], stamp, q, v, force):
+            reason = self._refused_state(stamp, q, v, force)
         else:
-            # hypot is NaN or inf for NaN/inf entries and never overflows (no numpy
-            # warning): one comparison checks finiteness and the bound at once.
-            q_norm, v_norm = math.hypot(*q.tolist()), math.hypot(*v.tolist())
-            if not (q_norm <= values["max_joint_position"] and v_norm <= values["max_joint_velocity"]
-                    and math.isfinite(stamp + sum(force.tolist()))):
-                reason = (f"absurd or non-finite state (|q| = {q_norm:.3g}, |v| = {v_norm:.3g}, "
-                          f"force {force}, stamp {stamp})")
-        if not reason:
             if self._t0 is None:
                 self._t0 = self._t_prev = stamp
             gap = stamp - self._t_prev
@@ -221,34 +307,35 @@ class Controller(ABC):
         out.status[self._i_compute] = (time.perf_counter() - start) * 1e6
         return out
 
+    def _refused_state(self, stamp: float, q: np.ndarray, v: np.ndarray, force: np.ndarray) -> str:
+        """Why :func:`admit_state` refused a state (the rare path: numpy is fine here)."""
+        n = self.n_state
+        if q.shape != (n,) or v.shape != (n,) or force.shape[0] < 2:
+            return f"state of the wrong size (q {q.shape}, v {v.shape}, force {force.shape})"
+        q_norm, v_norm = math.hypot(*q.tolist()), math.hypot(*v.tolist())  # never overflow
+        return (f"absurd or non-finite state (|q| = {q_norm:.3g}, |v| = {v_norm:.3g}, "
+                f"force {force}, stamp {stamp})")
+
     def _compute(self, stamp: float, dt: float, q: np.ndarray, v: np.ndarray,
                  force: np.ndarray) -> tuple[ControlOutput | None, str]:
-        """compute() with the internal-state and command checks; (output or None, reason)."""
-        internal = self.internal
-        if internal is not None and (self._internal_good is None
-                                     or self._internal_good.shape != internal.shape):
-            self._internal_good = internal.copy()            # the initial value
+        """compute() judged by :func:`accept_cycle`; (output or None, reason)."""
+        internal = _NO_INTERNAL if self.internal is None else self.internal
+        if internal is not self._internal_of:
+            self._internal_good, self._internal_of = internal.copy(), internal  # initial value
         out = self.compute(stamp - self._t0, dt, q, v, force)
-        if internal is not None:
-            if all_finite(internal):
-                np.copyto(self._internal_good, internal)
-            else:
-                np.copyto(internal, self._internal_good)
-                self.restored_cycles += 1
-                return None, "internal state not finite: restored to its last finite value"
-        command = out.command
-        if command.shape != (self.n_joints,):
-            return None, f"command of the wrong size {command.shape}"
-        limit = self.values["max_effort"]
-        if not math.hypot(*command.tolist()) <= limit:       # NaN, inf or maybe beyond the limit
-            if not math.isfinite(sum(command.tolist())):
-                return None, f"non-finite command {command}"
-            if np.abs(command).max() > limit:
-                np.clip(command, -limit, limit, out=command)
-                if self._command_slots is not None:
-                    out.status[self._command_slots] = command
-        self._t_prev = stamp
-        return out, ""
+        verdict = accept_cycle(self.n_joints, self.values["max_effort"], internal,
+                               self._internal_good, out.command, out.status, self._command_slots)
+        if verdict == ACCEPTED:
+            if self._output is not None:
+                self._output.keep()
+            self._t_prev = stamp
+            return out, ""
+        if verdict == INTERNAL_RESTORED:
+            self.restored_cycles += 1
+            return None, "internal state not finite: restored to its last finite value"
+        if verdict == WRONG_COMMAND_SIZE:
+            return None, f"command of the wrong size {out.command.shape}"
+        return None, f"non-finite command {out.command}"
 
     def _warn(self, reason: str) -> None:
         """Log why a cycle was held, at most every WARN_EVERY_S with a count in between."""

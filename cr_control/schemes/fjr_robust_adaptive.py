@@ -100,9 +100,8 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.schemes import flexible_joint_scheme as fjs
-from cr_control.schemes.controller import ControlOutput
+from cr_control.schemes.controller import ControlOutput, KernelOutput
 from cr_control.schemes.flexible_joint_model import P_HAT_0, expanded_regressor_into
-from cr_control.schemes.task_space import KernelOutput
 
 N_P = 10
 MOTOR_ACCELERATION = ("measured", "filtered")

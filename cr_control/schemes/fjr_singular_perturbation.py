@@ -116,7 +116,7 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.schemes import flexible_joint_scheme as fjs
-from cr_control.schemes.controller import ControlOutput
+from cr_control.schemes.controller import ControlOutput, KernelOutput
 from cr_control.schemes.flexible_joint_model import (
     P_HAT_0,
     filtered_regressor_input_into,
@@ -126,7 +126,6 @@ from cr_control.schemes.flexible_joint_model import (
     regressor_into,
     regressor_jets_into,
 )
-from cr_control.schemes.task_space import KernelOutput
 
 N_P = 5
 ESTIMATE_FIELDS = [f"p_hat_{i + 1}" for i in range(N_P)]

@@ -24,8 +24,7 @@ from numba import njit
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.schemes import moving_object_model as mo
-from cr_control.schemes.controller import ControlOutput
-from cr_control.schemes.task_space import KernelOutput
+from cr_control.schemes.controller import ControlOutput, KernelOutput
 
 ESTIMATE_FIELDS = [f"P_hat_{i + 1}" for i in range(7)]
 

@@ -41,8 +41,7 @@ from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.schemes import moving_object_model as mo
 from cr_control.schemes import rbf_network
-from cr_control.schemes.controller import ControlOutput
-from cr_control.schemes.task_space import KernelOutput
+from cr_control.schemes.controller import ControlOutput, KernelOutput
 
 NORM_FIELDS = ["M1_norm", "M1_hat_norm", "C1_norm", "C1_hat_norm", "G1_norm", "G1_hat_norm"]
 

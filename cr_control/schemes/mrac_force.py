@@ -28,8 +28,8 @@ from numba import njit
 from cr_control.core.parameters import Param
 from cr_control.schemes import diophantine
 from cr_control.schemes.backstepping_force import _JOINTS, TRUE_THETA
-from cr_control.schemes.controller import Controller, ControlOutput
-from cr_control.schemes.task_space import KernelOutput, split_output
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
+from cr_control.schemes.task_space import split_output
 
 #: True theta_f (4.69) of case 1 for the section 4.3 design (the corrected solution).
 TRUE_THETA_F_CASE1 = diophantine.solve(TRUE_THETA[1], 0.7, 0.5, [1.0, 19.0, 65.0, 77.0, 30.0])["theta_f"]

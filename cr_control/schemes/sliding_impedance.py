@@ -51,12 +51,11 @@ from cr_control.core.linalg import inv2, matmul, matvec, tmatvec
 from cr_control.core.packing import Layout, block, block2
 from cr_control.core.parameters import Param, matrix
 from cr_control.schemes import impedance_adaptation as impedance
-from cr_control.schemes.controller import Controller
+from cr_control.schemes.controller import Controller, KernelOutput
 from cr_control.schemes.impedance_adaptation import ImpedanceAdaptation, impedance_update
 from cr_control.schemes.references import REFERENCE, packed_reference
 from cr_control.schemes.task_space import (
     ArmTaskSpace,
-    KernelOutput,
     task_state,
     write_task_space,
 )

@@ -13,7 +13,6 @@ from numba import njit
 
 from cr_control.core.linalg import inv2, matmul, matvec, tmatvec
 from cr_control.core.parameters import Param
-from cr_control.schemes.controller import Controller, ControlOutput
 from cr_control.schemes.references import CHAPTER3_REFERENCE, chapter3_reference
 from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
 from cr_sim.models.planar_chain import (
@@ -131,28 +130,6 @@ class ArmTaskSpace:
 #: cycle (boxing three returned arrays costs ~100 interpreter loop iterations, slicing one
 #: vector ~10): [command (n) | reference values (8) | status values].
 N_REFERENCE = 8
-
-
-class KernelOutput:
-    """The one output vector a scheme's cycle kernel fills, fresh each cycle (a held command
-    keeps referring to the last good one): sizes from the scheme, views for ControlOutput."""
-
-    def __init__(self, controller: Controller):
-        n_status = len(controller.status_fields) - 1
-        self.n = controller.n_joints
-        self.n_reference = len(controller.reference_fields) - 1
-        self.size = self.n + self.n_reference + n_status
-        #: Where the scheme's own status fields (``extra_status_fields``) start.
-        self.extras_at = n_status - len(controller.extra_status_fields)
-
-    def new(self) -> np.ndarray:
-        """An output vector for one cycle."""
-        return np.empty(self.size)
-
-    def views(self, out: np.ndarray) -> ControlOutput:
-        """command, reference and status views of a filled output vector."""
-        n, k = self.n, self.n + self.n_reference
-        return ControlOutput(out[:n], out[n:k], out[k:])
 
 
 @njit(cache=True, error_model="numpy")

@@ -40,12 +40,11 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
-from cr_control.schemes.controller import Controller, ControlOutput
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
 from cr_control.schemes.references import CHAPTER3_REFERENCE, cosine_reference
 from cr_control.schemes.task_space import (
     ARM_MODEL_PARAMETERS,
     ArmTaskSpace,
-    KernelOutput,
     task_state,
     torque_for_acceleration,
     write_task_space,
