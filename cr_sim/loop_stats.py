@@ -15,6 +15,15 @@ BIN_S = 10e-6       # histogram resolution of whole-run round trips
 MAX_AGE_S = 1.0     # longer round trips are counted in the last bin
 
 
+def percentile(ordered: list[float], p: float) -> float:
+    """The p-th percentile of ascending ``ordered`` values, interpolated linearly between
+    neighbours (numpy.percentile's default), in plain Python: numpy's costs ~1 ms here."""
+    position = p / 100.0 * (len(ordered) - 1)
+    below = int(position)
+    above = min(below + 1, len(ordered) - 1)
+    return ordered[below] + (ordered[above] - ordered[below]) * (position - below)
+
+
 class LoopStats:
     """Accumulates cycles, freshness and round trips; reports PLANT_TIMING_FIELDS values."""
 
@@ -23,6 +32,7 @@ class LoopStats:
         self.total_cycles = 0
         self.total_fresh = 0
         self.total_max_age = 0.0
+        self._top_bin = 0          # highest histogram bin used
         self._window_ages: list[float] = []
         self._window_cycles = 0
         self._window_fresh = 0
@@ -53,35 +63,44 @@ class LoopStats:
     def round_trip(self, age: float) -> None:
         """Record one state -> command round trip (s)."""
         self._window_ages.append(age)
-        self.histogram[min(int(age / BIN_S), len(self.histogram) - 1)] += 1
+        i = min(int(age / BIN_S), len(self.histogram) - 1)
+        self.histogram[i] += 1
+        if i > self._top_bin:
+            self._top_bin = i
         self.total_max_age = max(self.total_max_age, age)
 
-    def _total_percentile(self, p: float) -> float:
-        count = self.histogram.sum()
+    def _total_percentiles(self, *ps: float) -> list[float]:
+        """Whole-run round-trip percentiles (s) from the histogram, one pass over its bins
+        up to the highest one used (a pass over all 100 001 per percentile cost ~3 ms of
+        the loop's thread once a second: ticks missed)."""
+        cumulative = np.cumsum(self.histogram[:self._top_bin + 1])
+        count = cumulative[-1]
         if count == 0:
-            return 0.0
-        index = int(np.searchsorted(np.cumsum(self.histogram), p / 100.0 * count))
-        return (index + 0.5) * BIN_S
+            return [0.0 for _ in ps]
+        indices = np.searchsorted(cumulative, [p / 100.0 * count for p in ps])
+        return [(int(i) + 0.5) * BIN_S for i in indices]
 
     def report(self, now: float) -> list[float]:
         """Values of topics.PLANT_TIMING_FIELDS after ``stamp`` for the window ending ``now``
         (wall seconds); starts a new window."""
         start = self._window_start if self._window_start is not None else now
         elapsed = now - start
-        ages = np.array(self._window_ages) if self._window_ages else np.zeros(1)
+        ages = sorted(self._window_ages) or [0.0]
+        window_p50, window_p99 = percentile(ages, 50), percentile(ages, 99)
+        total_p50, total_p99 = self._total_percentiles(50, 99)
         cycles = max(self._window_cycles, 1)
         values = [
             self._window_cycles / elapsed if elapsed > 0 else 0.0,
             float(self._window_cycles),
             self._window_fresh / cycles,
-            float(np.percentile(ages, 50)) * 1e3,
-            float(np.percentile(ages, 99)) * 1e3,
-            float(ages.max()) * 1e3,
+            float(window_p50) * 1e3,
+            float(window_p99) * 1e3,
+            ages[-1] * 1e3,
             float(self.total_cycles),
             self.total_fresh / max(self.total_cycles, 1),
             float(self.total_cycles - self.total_fresh),
-            self._total_percentile(50) * 1e3,
-            self._total_percentile(99) * 1e3,
+            total_p50 * 1e3,
+            total_p99 * 1e3,
             self.total_max_age * 1e3,
             self._window_step_time / cycles * 1e6,
             self._window_publish_time / cycles * 1e6,
