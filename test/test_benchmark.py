@@ -80,12 +80,6 @@ def test_timing_dict_and_loop_figures():
     assert silent["rt_p99_ms"] is None and silent["fresh_pct"] == 0.0  # no command came back
 
 
-def test_percentile():
-    assert bm.percentile([3.0, 1.0, 2.0], 50) == 2.0
-    assert bm.percentile([0.0, 10.0], 99) == 9.9
-    assert math.isnan(bm.percentile([], 50))
-
-
 def test_last_double_reads_raw_cdr():
     fields = topics.STATUS_FIELDS
     msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension, fields)

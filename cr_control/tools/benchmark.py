@@ -91,6 +91,7 @@ from cr_control.tools.session import (
     SessionError,
     session_parameters,
 )
+from cr_sim.loop_stats import percentiles
 
 SCHEME = "adaptive_impedance"
 #: CPU used by other processes (% of one core) above which a run is flagged as disturbed.
@@ -250,17 +251,6 @@ def window_mean(reports: Sequence[dict[str, float]], name: str) -> float | None:
     if not pairs or cycles <= 0:
         return None
     return sum(v * n for v, n in pairs) / cycles
-
-
-def percentile(values: Sequence[float], p: float) -> float:
-    """The ``p``-th percentile (linear interpolation) of ``values``; nan if empty."""
-    if not len(values):
-        return math.nan
-    s = sorted(values)
-    k = (len(s) - 1) * p / 100.0
-    lo = math.floor(k)
-    hi = min(lo + 1, len(s) - 1)
-    return s[lo] + (s[hi] - s[lo]) * (k - lo)
 
 
 def last_double(buf: bytes, count_from_end: int) -> float:
@@ -678,7 +668,7 @@ def step_us_hot_and_after_idle(cycles: int = 400, idle_s: float = 0.0009) -> dic
             t0 = time.perf_counter_ns()
             controller.step(stamp, q, v, force)
             times.append(time.perf_counter_ns() - t0)
-        out[label] = percentile(times, 50) / 1e3
+        out[label] = percentiles(times, 50)[0] / 1e3
     return out
 
 
@@ -932,8 +922,8 @@ def _time_breakdown(listener: Listener | None, controller: bool) -> dict[str, An
     if controller:
         for name, key in (("in_time_us", "in"), ("compute_time_us", "compute"), ("out_time_us", "out")):
             values = listener.status.get(name)
-            fig[f"{key}_p50_us"] = percentile(values, 50) if values else None
-            fig[f"{key}_p99_us"] = percentile(values, 99) if values else None
+            fig[f"{key}_p50_us"], fig[f"{key}_p99_us"] = (percentiles(values, 50, 99) if values
+                                                           else (None, None))
         fig["compute_samples"] = len(listener.status.get("compute_time_us", ()))
     return fig
 
