@@ -218,8 +218,8 @@ class PlantNode(Node):
         self._t0_wall = 0.0
         self._last_tick = 0.0
         self._carry = 0.0          # realtime: wall time not yet simulated (s)
-        self._stepped_ahead = False  # realtime: the next tick's first period is integrated
-        self._ahead_time = 0.0     # ... and took this long (s)
+        # Realtime: seconds the step ahead of the next tick took (None: not stepped ahead).
+        self._ahead_time: float | None = None
         self._last_publish_wall = 0.0
 
         self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, PUBLISH_QOS)
@@ -418,7 +418,7 @@ class PlantNode(Node):
             return
         if self.lockstep:
             self._lockstep_step()
-        elif not self._stepped_ahead:
+        elif self._ahead_time is None:
             self._step_ahead()
 
     # -- stepping -------------------------------------------------------------------
@@ -436,7 +436,6 @@ class PlantNode(Node):
         answered the latest state (the tick then publishes at once)."""
         start = time.perf_counter()
         self.plant.step(self.command, self.period)
-        self._stepped_ahead = True
         self._ahead_time = time.perf_counter() - start
 
     def _resend_if_stalled(self) -> None:
@@ -493,13 +492,13 @@ class PlantNode(Node):
         due = elapsed + self._carry
         substeps = max(1, round(due / self.period))
         self._carry = max(due - substeps * self.period, -self.period)
-        ahead, self._stepped_ahead = self._stepped_ahead, False
-        for _ in range(substeps - ahead):
+        ahead, self._ahead_time = self._ahead_time, None
+        for _ in range(substeps - (ahead is not None)):
             if self.safe_stop:                           # brakes act on every substep
                 self._command_list = self.limiter.bound(self.plant.safe_stop_command())
                 self.command = np.array(self._command_list)
             self.plant.step(self.command, self.period)
-        self.stats.cycle(fresh, time.perf_counter() - start + (self._ahead_time if ahead else 0.0))
+        self.stats.cycle(fresh, time.perf_counter() - start + (ahead or 0.0))
         if self._out_of_time():
             self._finish()
             return
