@@ -40,9 +40,12 @@ Safety (issue 7), modelled on libfranka:
   domain, a rogue node) is checked once a second: warned once and counted in
   ``command_publishers`` / ``state_publishers``, so the recording shows it.
 
-Hot path (issue 6): the state, wrench and clock messages are built once and refilled in
-place each tick (numpy views onto their float64[] fields); the time spent building and publishing them is
-reported as ``publish_time_us``.
+Hot path (issue 6): the state, wrench, sensors and clock messages are built once as CDR
+bytes and refilled in place each tick (:class:`cr_control.core.cdr.Writer`: numpy views
+onto their numbers), published as bytes; commands are taken serialized (``raw=True``)
+and read from their bytes (:mod:`cr_control.nodes.raw_messages`): no ROS message object
+per tick. The time spent building and publishing the state is reported as
+``publish_time_us``.
 """
 
 from __future__ import annotations
@@ -62,9 +65,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension, String
 
-from cr_control.core import topics
+from cr_control.core import cdr, topics
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
+from cr_control.nodes.raw_messages import JointStateFields, JointStateReader
 from cr_control.nodes.ros_parameters import declare, police_changes
 from cr_control.nodes.spin import RCLError, quiet_on_shutdown, spin_nodes, start_nodes
 from cr_sim.loop_stats import LoopStats
@@ -179,7 +183,7 @@ class PlantNode(Node):
         self.period = 1.0 / self.settings["rate_hz"]
         self.lockstep = self.settings["mode"] == "lockstep"
         self.joint_names = list(self.plant.joint_names)
-        self.command_names = list(self.plant.command_joints)
+        self.command_names = tuple(self.plant.command_joints)
         self.plant.brake_damping = self.settings["brake_damping"]
         self.plant.brake_stiffness = self.settings["brake_stiffness"]
         self.limiter = command_limiter(self.plant, self.settings, self.period)
@@ -227,23 +231,25 @@ class PlantNode(Node):
         sensor_fields = ["stamp", *self.plant.sensor_fields]
         self.sensors_pub = (self.create_publisher(Float64MultiArray, topics.PLANT_SENSORS,
                                                   PUBLISH_QOS) if len(sensor_fields) > 1 else None)
-        self._sensors_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
-                                                  sensor_fields)
+        self._sensors = topics.labelled_writer(sensor_fields)
+        self._sensors_out = self._sensors.array("data")
         self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, PUBLISH_QOS)
         self.clock_pub = self.create_publisher(Clock, topics.CLOCK, PUBLISH_QOS) if self.lockstep else None
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                  topics.PLANT_TIMING_FIELDS)
-        # Outgoing messages, built once and refilled in place every tick.
-        self._state_msg = JointState(name=list(self.joint_names))
-        self._q_out = topics.array_field(self._state_msg, "position", n)
-        self._v_out = topics.array_field(self._state_msg, "velocity", n)
-        self._e_out = topics.array_field(self._state_msg, "effort", n)
-        self._wrench_msg = WrenchStamped()
-        self._wrench_msg.header.frame_id = "world"
-        self._clock_msg = Clock()
+        # Outgoing messages, built once as CDR bytes and refilled in place every tick.
+        self._state = cdr.Writer(cdr.joint_state, name=self.joint_names, position=n, velocity=n,
+                                 effort=n)
+        self._q_out, self._v_out, self._e_out = (self._state.array(f) for f in
+                                                 ("position", "velocity", "effort"))
+        self._wrench = cdr.Writer(cdr.wrench_stamped, frame_id="world")
+        self._force_out = self._wrench.array("wrench")[:3]
+        self._clock_out = cdr.Writer(cdr.clock)
+        self._read_command = JointStateReader()
 
         self.command_sub = self.create_subscription(
-            JointState, topics.JOINT_COMMANDS, quiet_on_shutdown(self, self._on_command), CONTROL_QOS)
+            JointState, topics.JOINT_COMMANDS, quiet_on_shutdown(self, self._on_command), CONTROL_QOS,
+            raw=True)
         if self.settings["wait_for_recorder"]:
             self.create_subscription(Bool, topics.RECORDER_READY, self._on_recorder_ready, READY_QOS)
         # Timers are made here and started later: EventsExecutor does not pick up timers
@@ -259,7 +265,8 @@ class PlantNode(Node):
             f"scenario {scenario['scenario']} ({self.plant.command_interface} commands), "
             f"{self.settings['mode']} at {self.settings['rate_hz']:g} Hz, "
             f"joints {self.joint_names}"
-            + ("" if self.command_names == self.joint_names else f" (commanded {self.command_names})")
+            + ("" if list(self.command_names) == self.joint_names
+               else f" (commanded {list(self.command_names)})")
             + f", command limits {self.limiter.lower}..{self.limiter.upper}, "
             f"watchdog {self._watchdog}"
             + ("" if self._watchdog == "disabled" else f" after {self._missed_limit} missed cycles")
@@ -324,23 +331,22 @@ class PlantNode(Node):
         """Publish clock (lockstep), wrench and joint state stamped ``sec.nanosec``."""
         start = time.perf_counter()
         m = self.plant.measurement()
-        state, wrench = self._state_msg, self._wrench_msg
+        state, wrench = self._state, self._wrench
         self._q_out[:] = m.position
         self._v_out[:] = m.velocity
         self._e_out[:] = m.effort
-        for stamp in (state.header.stamp, wrench.header.stamp):
-            stamp.sec, stamp.nanosec = sec, nanosec
-        force = wrench.wrench.force
-        force.x, force.y, force.z = m.force.tolist()
+        state.set_stamp(sec, nanosec)
+        wrench.set_stamp(sec, nanosec)
+        self._force_out[:] = m.force
         if self.clock_pub is not None:
-            clock = self._clock_msg.clock
-            clock.sec, clock.nanosec = sec, nanosec
-            self.clock_pub.publish(self._clock_msg)
-        self.wrench_pub.publish(wrench)
+            self._clock_out.set_stamp(sec, nanosec)
+            self.clock_pub.publish(self._clock_out.message())
+        self.wrench_pub.publish(wrench.message())
         if self.sensors_pub is not None:
-            self._sensors_msg.data = [sec + nanosec * 1e-9, *self.plant.sensors()]
-            self.sensors_pub.publish(self._sensors_msg)
-        self.state_pub.publish(state)
+            self._sensors_out[0] = sec + nanosec * 1e-9
+            self._sensors_out[1:] = self.plant.sensors()
+            self.sensors_pub.publish(self._sensors.message())
+        self.state_pub.publish(state.message())
         now = time.monotonic()
         key = sec * 1_000_000_000 + nanosec
         self.state_stamp = key
@@ -377,7 +383,7 @@ class PlantNode(Node):
         self.get_logger().warn(f"refused a command ({why}); {self.stats.commands_refused} so far; "
                                "holding the last good one", throttle_duration_sec=5.0)
 
-    def _wrong_field(self, msg: JointState) -> str:
+    def _wrong_field(self, msg: JointStateFields) -> str:
         """Why ``msg`` is not a command of our interface ("" if it is one)."""
         ours, theirs = (("positions", "efforts") if self._position_interface
                         else ("efforts", "positions"))
@@ -388,7 +394,11 @@ class PlantNode(Node):
                     f"{self.scenario})")
         return ""
 
-    def _on_command(self, msg: JointState) -> None:
+    def _on_command(self, data: bytes) -> None:
+        msg = self._read_command(data)
+        if msg is None:
+            self._refuse("not a readable JointState")
+            return
         values = msg.position if self._position_interface else msg.effort
         if msg.name != self.command_names or len(values) != len(self.command_names):
             values = self._reorder(msg.name, values)
@@ -396,15 +406,14 @@ class PlantNode(Node):
                 self._refuse(self._wrong_field(msg) or
                              f"it names {list(msg.name)} with {len(msg.effort)} efforts and "
                              f"{len(msg.position)} positions; the plant's commanded joints are "
-                             f"{self.command_names}")
+                             f"{list(self.command_names)}")
                 return
         limited = self.limiter.limit(values, self._command_list)
         if limited is None:
             self._refuse("non-finite value")
             return
         self.stats.commands_clipped = self.limiter.clipped
-        stamp = msg.header.stamp
-        key = stamp.sec * 1_000_000_000 + stamp.nanosec
+        key = msg.sec * 1_000_000_000 + msg.nanosec
         sent = self._published_at(key)
         if sent is not None:
             self.stats.round_trip(time.monotonic() - sent)

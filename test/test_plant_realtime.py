@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 
 from cr_sim.plant_node import PlantNode
@@ -46,7 +47,7 @@ def answer(node: PlantNode, effort: list[float], stamp: int | None = None) -> No
     msg = JointState(name=list(node.command_names), effort=effort)
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
         node.state_stamp if stamp is None else stamp, 1_000_000_000)
-    node._on_command(msg)
+    node._on_command(serialize_message(msg))    # the subscription is raw: bytes
 
 
 def test_an_answer_steps_on_arrival_and_the_tick_only_publishes(node):

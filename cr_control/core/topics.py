@@ -9,10 +9,9 @@ belong to. Any MCAP reader can recover named columns with :func:`fields_of`.
 
 from __future__ import annotations
 
-import array
 from collections.abc import Sequence
 
-import numpy as np
+from cr_control.core import cdr
 
 JOINT_STATES = "/joint_states"
 WRENCH = "/force_torque_sensor_broadcaster/wrench"
@@ -64,12 +63,11 @@ def labelled_array(msg_cls, dim_cls, fields: Sequence[str]):
     return msg
 
 
-def array_field(msg, field: str, n: int) -> np.ndarray:
-    """Give ``msg.field`` (a float64[] field) ``n`` zeros and return a numpy view that writes
-    into the message's own array: a message built once is refilled in place each cycle
-    (rclpy's setter stores a copy of what it is given, so view what it stored)."""
-    setattr(msg, field, array.array("d", bytes(8 * n)))
-    return np.frombuffer(getattr(msg, field), dtype=np.float64)
+def labelled_writer(fields: Sequence[str]) -> cdr.Writer:
+    """A Float64MultiArray whose layout names ``fields``, built once as CDR bytes: fill
+    ``writer.array("data")`` per cycle and publish ``writer.message()``."""
+    n = len(fields)
+    return cdr.Writer(cdr.float64_multi_array, dim=[(layout_label(fields), n, n)], data=n)
 
 
 #: Fields of the plant's per-second timing message (PLANT_TIMING). ``window_*`` cover

@@ -7,13 +7,16 @@ and its labelled ~/reference and ~/status (topics.py) every ``diagnostics_every`
 cycles. Gains are ROS parameters (config/<scheme>.yaml), live-tunable through the
 standard parameter services.
 
-Hot path (issue 6): outgoing messages are built once and refilled in place (numpy
-views onto the messages' own ``array.array`` fields: no message construction, no
-per-element conversion); incoming arrays are read without copies. The status carries where a cycle's
-time goes: ``in_time_us`` (callback entry to compute start), ``compute_time_us`` and
-``out_time_us`` (building and publishing the previous cycle's messages). numpy's
-floating-point warnings are off in the node process: :meth:`Controller.step` catches
-non-finite results itself and logs them, rate-limited.
+Hot path (issue 6): the loop's messages are taken and published serialized
+(``raw=True`` subscriptions, ``publish(bytes)``): joint states, wrenches and plant
+sensors are read straight from their CDR bytes (:mod:`cr_control.nodes.raw_messages`),
+and the command, reference and status are built once as CDR bytes whose numbers are
+refilled in place (:class:`cr_control.core.cdr.Writer`): no ROS message object is made
+or converted per cycle. The status carries where a cycle's time goes: ``in_time_us``
+(callback entry to compute start), ``compute_time_us`` and ``out_time_us`` (building
+and publishing the previous cycle's messages). numpy's floating-point warnings are off
+in the node process: :meth:`Controller.step` catches non-finite results itself and logs
+them, rate-limited.
 
 Command interface (issue 9): the plant advertises what it takes on the latched
 ``/plant/command_interface`` ("effort" or "position"). A scheme that commands the other
@@ -39,11 +42,17 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
+from std_msgs.msg import Float64MultiArray, String
 
-from cr_control.core import topics
+from cr_control.core import cdr, topics
 from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, Param
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
+from cr_control.nodes.raw_messages import (
+    ArrayReader,
+    JointStateFields,
+    JointStateReader,
+    WrenchReader,
+)
 from cr_control.nodes.ros_parameters import ParameterError, declare, police_changes
 from cr_control.nodes.spin import RCLError, quiet_on_shutdown, spin_nodes, start_nodes
 from cr_control.schemes.registry import SCHEMES, controller_class
@@ -101,12 +110,12 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self._check_counts)
         police_changes(self, specs, self._apply, self.controller.check_parameter)
         self.joint_names = list(self.controller.values["joint_names"])        # commanded
-        self.state_joint_names = list(self.controller.state_joint_names)      # read
+        self.state_joint_names = tuple(self.controller.state_joint_names)     # read
         n = len(self.joint_names)
         self._diagnostics_every = values["diagnostics_every"]
         self._cycle = 0
         self._out_time_us = 0.0
-        self._index_cache: tuple[tuple[str, ...], np.ndarray | None] = ((), None)
+        self._index_cache: tuple[tuple[str, ...], list[int] | None] = ((), None)
         self.force = np.zeros(3)
         self._last_stamp: tuple[int, int] | None = None
         self._answered = False
@@ -127,19 +136,19 @@ class ControllerNode(Node):
         self.status_pub = publish(Float64MultiArray, f"~/{topics.STATUS_SUFFIX}", PUBLISH_QOS)
         forward = self.controller.values["forward_command_topic"]
         self.forward_pub = publish(Float64MultiArray, forward, PUBLISH_QOS) if forward else None
-        # Outgoing messages, built once and refilled in place every cycle.
-        self._command_msg = JointState(name=list(self.joint_names))
+        # Outgoing messages, built once as CDR bytes and refilled in place every cycle.
         field = "position" if self.controller.command_interface == "position" else "effort"
-        self._command_out = topics.array_field(self._command_msg, field, n)
-        self._forward_msg = Float64MultiArray()
-        self._forward_out = topics.array_field(self._forward_msg, "data", n)
-        reference_fields = self.controller.reference_fields
-        status_fields = self.controller.status_fields + topics.NODE_STATUS_FIELDS
-        self._reference_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
-                                                    reference_fields)
-        self._status_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension, status_fields)
-        self._reference_out = topics.array_field(self._reference_msg, "data", len(reference_fields))
-        self._status_out = topics.array_field(self._status_msg, "data", len(status_fields))
+        self._command = cdr.Writer(cdr.joint_state, name=self.joint_names, **{field: n})
+        self._command_out = self._command.array(field)
+        self._command_bytes = b""                         # the last command published
+        self._forward = cdr.Writer(cdr.float64_multi_array, data=n)
+        self._forward_out = self._forward.array("data")
+        self._reference = topics.labelled_writer(self.controller.reference_fields)
+        self._status = topics.labelled_writer(self.controller.status_fields + topics.NODE_STATUS_FIELDS)
+        self._reference_out = self._reference.array("data")
+        self._status_out = self._status.array("data")
+        self._read_state, self._read_wrench = JointStateReader(), WrenchReader()
+        self._read_sensors = ArrayReader()
         self._n_status = len(self.controller.status_fields)
         # Latched like the recorder's ready flag (READY_QOS: RELIABLE, TRANSIENT_LOCAL, 1).
         self.create_subscription(String, topics.PLANT_COMMAND_INTERFACE,
@@ -148,15 +157,17 @@ class ControllerNode(Node):
         self._plant_parameters = self.create_client(GetParameters, "/plant/get_parameters")
         self._refusal_timer = self.create_timer(0.05, quiet_on_shutdown(self, self._refuse_when_ready),
                                                 autostart=False)
-        self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, CONTROL_QOS)
+        self.create_subscription(WrenchStamped, topics.WRENCH, self._on_wrench, CONTROL_QOS,
+                                 raw=True)
         self._sensor_fields = tuple(self.controller.plant_sensor_fields)
         self._sensor_cache: tuple[str, list[int] | None] = ("", None)
         self._sensors_seen = not self._sensor_fields
         if self._sensor_fields:
             self.create_subscription(Float64MultiArray, topics.PLANT_SENSORS,
-                                     self._on_plant_sensors, CONTROL_QOS)
+                                     self._on_plant_sensors, CONTROL_QOS, raw=True)
         self.create_subscription(JointState, topics.JOINT_STATES,
-                                 quiet_on_shutdown(self, self._on_joint_state), CONTROL_QOS)
+                                 quiet_on_shutdown(self, self._on_joint_state), CONTROL_QOS,
+                                 raw=True)
         self.get_logger().info(
             f"{scheme}: {len(specs)} parameters, commanding {self.joint_names} "
             f"({self.controller.command_interface})")
@@ -221,15 +232,26 @@ class ControllerNode(Node):
             self._advertised = self.count_publishers(topics.PLANT_COMMAND_INTERFACE) > 0
         return self._advertised
 
-    # -- messages in ------------------------------------------------------------------
-    def _on_wrench(self, msg: WrenchStamped) -> None:
-        f = msg.wrench.force
-        self.force[:] = (f.x, f.y, f.z)
+    # -- messages in (serialized: raw subscriptions) ------------------------------------
+    def _unreadable(self, topic: str) -> None:
+        self.get_logger().error(f"a message on {topic} could not be read: ignored",
+                                throttle_duration_sec=5.0)
 
-    def _on_plant_sensors(self, msg: Float64MultiArray) -> None:
+    def _on_wrench(self, data: bytes) -> None:
+        wrench = self._read_wrench(data)
+        if wrench is None:
+            self._unreadable(topics.WRENCH)
+            return
+        self.force[:] = wrench.force
+
+    def _on_plant_sensors(self, data: bytes) -> None:
         """The plant's extra measurements the law reads (``plant_sensor_fields``), found by
         label; published just before the joint state they belong to."""
-        label = msg.layout.dim[0].label if msg.layout.dim else ""
+        sensors = self._read_sensors(data)
+        if sensors is None:
+            self._unreadable(topics.PLANT_SENSORS)
+            return
+        label = sensors.labels[0] if sensors.labels else ""
         if label != self._sensor_cache[0]:
             fields = topics.fields_of(label)
             missing = [f for f in self._sensor_fields if f not in fields]
@@ -239,51 +261,51 @@ class ControllerNode(Node):
                                         f"{fields[1:]}): {self.scheme} reads them as NaN")
             self._sensor_cache = (label, index)
         index = self._sensor_cache[1]
-        data = msg.data
-        if index is not None and len(data) > max(index):
-            self.controller.plant_sensors[:] = [data[i] for i in index]
+        values = sensors.data
+        if index is not None and len(values) > max(index):
+            self.controller.plant_sensors[:] = [values[i] for i in index]
             self._sensors_seen = True
 
-    def _joint_order(self, names: list[str]) -> np.ndarray | None:
+    def _joint_order(self, names: tuple[str, ...]) -> list[int] | None:
         """Indices of our state joints in a JointState's name list (None if any is missing)."""
-        key = tuple(names)
-        if key != self._index_cache[0]:
+        if names != self._index_cache[0]:
             try:
-                order = np.array([names.index(n) for n in self.state_joint_names])
+                order = [names.index(n) for n in self.state_joint_names]
             except ValueError:
                 order = None
-            self._index_cache = (key, order)
+            self._index_cache = (names, order)
         if self._index_cache[1] is None:
-            self.get_logger().error(f"joint state lacks some of {self.state_joint_names}: {names}",
-                                    throttle_duration_sec=5.0)
+            self.get_logger().error(f"joint state lacks some of {list(self.state_joint_names)}: "
+                                    f"{list(names)}", throttle_duration_sec=5.0)
         return self._index_cache[1]
 
-    def _joint_arrays(self, msg: JointState) -> tuple[np.ndarray, np.ndarray]:
+    def _joint_arrays(self, state: JointStateFields) -> tuple[np.ndarray, np.ndarray]:
         """Positions and velocities in our joint order (empty arrays if unusable: held)."""
-        names, position, velocity = msg.name, msg.position, msg.velocity
+        names, position, velocity = state.name, state.position, state.velocity
         n = len(names)
         if len(position) != n or len(velocity) != n:
             return np.empty(0), np.empty(0)
-        position = np.frombuffer(position, dtype=np.float64)    # rclpy gives array.array: no copy
-        velocity = np.frombuffer(velocity, dtype=np.float64)
-        if names == self.state_joint_names:
-            return position, velocity
-        order = self._joint_order(names)
-        if order is None:
-            return np.empty(0), np.empty(0)
-        return position[order], velocity[order]
+        if names != self.state_joint_names:
+            order = self._joint_order(names)
+            if order is None:
+                return np.empty(0), np.empty(0)
+            position, velocity = [position[i] for i in order], [velocity[i] for i in order]
+        return np.array(position), np.array(velocity)
 
-    def _on_joint_state(self, msg: JointState) -> None:
+    def _on_joint_state(self, data: bytes) -> None:
         entry = time.perf_counter()
         if self._interface != "ok" and (self._interface == "refused" or self._plant_advertises()):
             return      # refused, or the plant's interface is on its way: no command
-        header_stamp = msg.header.stamp
-        stamp = (header_stamp.sec, header_stamp.nanosec)
+        state = self._read_state(data)
+        if state is None:
+            self._unreadable(topics.JOINT_STATES)
+            return
+        stamp = (state.sec, state.nanosec)
         if stamp == self._last_stamp and self._answered:
-            self.command_pub.publish(self._command_msg)  # a repeated state: same answer
+            self.command_pub.publish(self._command_bytes)  # a repeated state: same answer
             return
         self._last_stamp = stamp
-        position, velocity = self._joint_arrays(msg)
+        position, velocity = self._joint_arrays(state)
         if not self._sensors_seen:
             self.get_logger().warn(
                 f"{self.scheme} reads {list(self._sensor_fields)} from {topics.PLANT_SENSORS} "
@@ -295,14 +317,14 @@ class ControllerNode(Node):
 
         # -- messages out (timed; reported in the next published status) --
         out_start = time.perf_counter()
-        command = self._command_msg
-        command.header.stamp.sec, command.header.stamp.nanosec = stamp
+        self._command.set_stamp(*stamp)
         self._command_out[:] = out.command
-        self.command_pub.publish(command)
+        self._command_bytes = self._command.message()
+        self.command_pub.publish(self._command_bytes)
         self._answered = True
         if self.forward_pub is not None:
             self._forward_out[:] = out.command
-            self.forward_pub.publish(self._forward_msg)
+            self.forward_pub.publish(self._forward.message())
         self._cycle += 1
         if self._cycle >= self._diagnostics_every:
             self._cycle = 0
@@ -312,8 +334,8 @@ class ControllerNode(Node):
             status[1:self._n_status] = out.status
             status[-2] = (compute_start - entry) * 1e6
             status[-1] = self._out_time_us
-            self.reference_pub.publish(self._reference_msg)
-            self.status_pub.publish(self._status_msg)
+            self.reference_pub.publish(self._reference.message())
+            self.status_pub.publish(self._status.message())
         self._out_time_us = (time.perf_counter() - out_start) * 1e6
 
 
