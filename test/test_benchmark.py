@@ -359,3 +359,41 @@ def test_claimed_domains_one_held_at_a_time():
     assert second in ros_env._held and first not in ros_env._held
     domains.close()
     assert second not in ros_env._held
+
+
+def test_pairs_stolen_by_the_hypervisor_are_run_again_at_most_retries_times():
+    """ABBA order; a pair with more than STOLEN_PCT steal in either run is discarded and run
+    again, until ``retries`` pairs were discarded; then pairs are kept whatever the steal."""
+    order, steals = [], iter([0, 0, 50, 0, 30, 0, 0, 0, 90, 90])
+    lines = []
+
+    def run(kind):
+        def fn(tag):
+            order.append(kind + tag)
+            return {"cpu_steal_pct": next(steals), "fresh_pct": 90.0 if kind == "s" else 95.0,
+                    "rt_p99_ms": 1.0, "rate_hz": 999.0}
+        return fn
+
+    sessions, echoes, discarded = bm.run_pairs(run("s"), run("e"), repeat=3, retries=2,
+                                               progress=lines.append)
+    assert order == ["s #1", "e #1", "e #2", "s #2", "s #3", "e #3", "e #4", "s #4",
+                     "s #5", "e #5"]
+    assert [d["pair"] for d in discarded] == [2, 3]       # #2: 50 % (echo), #3: 30 % (session)
+    assert discarded[0]["echo_steal_pct"] == 50 and discarded[1]["cpu_steal_pct"] == 30
+    assert len(sessions) == len(echoes) == 3             # #1, #4 and #5 (90 %: no retry left)
+    assert [s["cpu_steal_pct"] for s in sessions] == [0, 0, 90]
+    assert sessions[0]["fresh_diff_pp"] == pytest.approx(-5.0)
+    assert len(lines) == 2 and "discarded, run again" in lines[0]
+    text = bm.format_repeats([("session processes", {"discarded": discarded})])
+    assert "pair #2 discarded" in text and "pair #3 discarded" in text
+
+
+def test_a_single_pair_keeps_its_untagged_title_unless_run_again():
+    tags = []
+
+    def run(tag):
+        tags.append(tag)
+        return {"cpu_steal_pct": 0.0}
+
+    bm.run_pairs(run, run, repeat=1, retries=0, progress=print)
+    assert tags == ["", ""]

@@ -30,7 +30,11 @@ Two ways to carry the cost figures to the machine the targets of issue 6 are sta
 
 Every target is printed with its measured value and PASS/FAIL. With ``--repeat N`` each
 session/echo pair runs N times in ABBA order and the tables and targets show medians (of
-the pairwise differences and ratios for the "vs baseline" rows), each repeat printed.
+the pairwise differences and ratios for the "vs baseline" rows), each repeat printed. A
+pair during whose session or echo run the hypervisor stole more than :data:`STOLEN_PCT`
+of a core measured the host's other machines, not the loop: it is printed as discarded
+and run again, at most ``--retries`` times per layout (steal is the machine's own count,
+``/proc/stat``, the same for session and echo pair).
 
 Whole-run loop figures come from the last ``/plant/timing`` message (``total_*`` fields)
 and the plant's "done:" log line; CPU is read from ``/proc/<pid>/stat`` (utime + stime)
@@ -96,6 +100,10 @@ from cr_sim.loop_stats import percentiles
 SCHEME = "adaptive_impedance"
 #: CPU used by other processes (% of one core) above which a run is flagged as disturbed.
 DISTURBED_PCT = 20.0
+#: Hypervisor steal (% of one core) during either run of a session/echo pair above which
+#: the pair is run again (at most ``--retries`` times per layout): it measured the other
+#: machines on the host, not the loop.
+STOLEN_PCT = 20.0
 #: ns per plain Python loop iteration of the machine the cost targets are stated for.
 REFERENCE_LOOP_NS = 300.0
 #: The code issue 6 measured its "before" table on (the last commit before the work on it).
@@ -339,7 +347,53 @@ def format_repeats(runs: Sequence[tuple[str, dict[str, Any]]]) -> str:
         cells = [f"{fmt(r.get('rate_hz'), '.1f')} Hz {fmt(r.get('fresh_diff_pp'), '+.2f')} pp "
                  f"p99 {fmt(r.get('p99_ratio'), '.2f')}x" for r in fig["repeats"]]
         lines.append(f"{title} vs its echo pair, each repeat: " + "; ".join(cells))
+    for title, fig in runs:
+        for d in fig.get("discarded") or []:
+            lines.append(f"{title} pair #{d['pair']} discarded (hypervisor steal "
+                         f"{fmt(d.get('cpu_steal_pct'), '.0f')} % / {fmt(d.get('echo_steal_pct'), '.0f')} "
+                         f"% of a core, session / echo pair): {fmt(d.get('rate_hz'), '.1f')} Hz "
+                         f"{fmt(d.get('fresh_diff_pp'), '+.2f')} pp p99 {fmt(d.get('p99_ratio'), '.2f')}x")
     return "\n".join(lines)
+
+
+def stolen(fig: dict[str, Any]) -> bool:
+    """Whether the hypervisor stole more than :data:`STOLEN_PCT` of a core during a run."""
+    return (fig.get("cpu_steal_pct") or 0.0) > STOLEN_PCT
+
+
+RunFn = Callable[[str], dict[str, Any]]
+
+
+def run_pairs(run_session: RunFn, run_echo: RunFn, repeat: int, retries: int,
+              progress: Callable[[str], None]) -> tuple[list[dict], list[dict], list[dict]]:
+    """``repeat`` session/echo pairs of one layout in ABBA order (each run function takes
+    the pair's tag, " #1", " #2", ...). A pair during whose session or echo run the
+    hypervisor stole more than :data:`STOLEN_PCT` of a core is run again, ``retries`` times
+    at most; returns the sessions (with :func:`ratios` to their echo pair), the echo pairs,
+    and the discarded pairs (their :data:`REPEAT_KEYS` and both runs' steal)."""
+    sessions: list[dict] = []
+    echoes: list[dict] = []
+    discarded: list[dict] = []
+    attempt = 0
+    while len(sessions) < repeat:
+        attempt += 1
+        tag = "" if repeat == 1 and attempt == 1 else f" #{attempt}"
+        if attempt % 2:      # ABBA order: a drift of the machine hits both alike
+            session, echo = run_session(tag), run_echo(tag)
+        else:
+            echo, session = run_echo(tag), run_session(tag)
+        session.update(ratios(session, echo))
+        if (stolen(session) or stolen(echo)) and len(discarded) < retries:
+            discarded.append({"pair": attempt, "echo_steal_pct": echo.get("cpu_steal_pct"),
+                              **{k: session.get(k) for k in REPEAT_KEYS}})
+            progress(f"pair #{attempt}: the hypervisor stole "
+                     f"{fmt(session.get('cpu_steal_pct'), '.0f')} % / "
+                     f"{fmt(echo.get('cpu_steal_pct'), '.0f')} % of a core (session / echo pair): "
+                     "discarded, run again")
+            continue
+        sessions.append(session)
+        echoes.append(echo)
+    return sessions, echoes, discarded
 
 
 def disturbed(fig: dict[str, Any]) -> bool:
@@ -1257,6 +1311,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=int, default=1,
                    help="session/echo pairs per layout, in ABBA order; the tables and targets show "
                         "the median over the pairs, the spread is printed (default 1)")
+    p.add_argument("--retries", type=int, default=2,
+                   help=f"per layout, how many session/echo pairs may be run again because the "
+                        f"hypervisor stole more than {STOLEN_PCT:g}%% of a core during one of their "
+                        "runs (default 2; the discarded pairs are printed)")
     p.add_argument("-p", "--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
                    help="a parameter of the sessions, as cr_session's -p (e.g. "
                         f"{SCHEME}.diagnostics_every=10); the echo pairs stay as they are")
@@ -1293,6 +1351,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeat < 1:
         print("cr_benchmark: --repeat must be >= 1", file=sys.stderr)
         return 2
+    if args.retries < 0:
+        print("cr_benchmark: --retries must be >= 0", file=sys.stderr)
+        return 2
     try:  # a setting no node would take is refused before any run starts
         session_parameters(SessionConfig(scheme=SCHEME, overrides=args.set), Path(os.devnull))
     except SessionError as exc:
@@ -1324,27 +1385,20 @@ def main(argv: list[str] | None = None) -> int:
             if not args.skip_recorder:
                 pairs.append(("recorder", "session + recorder", "echo + recorder", False, True))
             for layout, session_title, echo_title, composed, record in pairs:
-                sessions, echoes = [], []
-                for r in range(args.repeat):
-                    tag = "" if args.repeat == 1 else f" #{r + 1}"
 
-                    def session_run(tag=tag, composed=composed, record=record, title=session_title):
-                        return run_session(title + tag, next(domains), out, args.duration, "realtime",
-                                           composed, progress, compute, record=record,
-                                           overrides=args.set)
+                def session_run(tag, composed=composed, record=record, title=session_title):
+                    return run_session(title + tag, next(domains), out, args.duration, "realtime",
+                                       composed, progress, compute, record=record,
+                                       overrides=args.set)
 
-                    def echo_run(tag=tag, composed=composed, record=record, title=echo_title):
-                        return run_echo(title + tag, next(domains), out, args.duration, composed, progress,
-                                        record=record, recorder_module=recorder_modules[0])
+                def echo_run(tag, composed=composed, record=record, title=echo_title):
+                    return run_echo(title + tag, next(domains), out, args.duration, composed, progress,
+                                    record=record, recorder_module=recorder_modules[0])
 
-                    if r % 2 == 0:      # ABBA order: a drift of the machine hits both alike
-                        session, echo = session_run(), echo_run()
-                    else:
-                        echo, session = echo_run(), session_run()
-                    session.update(ratios(session, echo))
-                    sessions.append(session)
-                    echoes.append(echo)
+                sessions, echoes, discarded = run_pairs(session_run, echo_run, args.repeat,
+                                                        args.retries, progress)
                 session, echo = median_figures(sessions), median_figures(echoes)
+                session["discarded"] = discarded
                 realtime += [(session_title, session), (echo_title, echo)]
                 targets += realtime_targets(layout, session, echo)
         if not args.skip_recorder or args.only_recorder_load:
@@ -1410,7 +1464,8 @@ def main(argv: list[str] | None = None) -> int:
         print(format_realtime_table(realtime))
         if args.repeat > 1:
             print(f"(medians of {args.repeat} repeats, ABBA order)")
-            print(format_repeats(realtime))
+        if repeats := format_repeats(realtime):
+            print(repeats)
     if loads:
         print()
         print(format_recorder_load(loads, loop_ns))
