@@ -38,65 +38,71 @@ class ArrayFields(NamedTuple):
     data: tuple[float, ...]
 
 
-def _deserialize(data: bytes, msg_type: type) -> Any | None:
-    try:
-        return deserialize_message(data, msg_type)
-    except Exception:  # noqa: BLE001 - rclpy raises several kinds for bytes it cannot read
-        return None
+class _RawReader:
+    """``reader(data)``: the fields of a serialized message of ``msg_type``, or None. Plain
+    CDR is read by ``schema`` (:mod:`cr_control.core.cdr`); other bytes by rclpy."""
 
-
-class JointStateReader:
-    """``reader(data)``: the fields of a serialized sensor_msgs/JointState, or None."""
+    schema: cdr.Schema
+    msg_type: type
 
     def __init__(self) -> None:
-        self._cdr = cdr.Reader(cdr.joint_state)
+        self._cdr = cdr.Reader(type(self).schema)
 
-    def __call__(self, data: bytes) -> JointStateFields | None:
+    def __call__(self, data: bytes) -> Any | None:
         items = self._cdr.read(data)
         if items is not None:
-            shape = self._cdr.shape
-            s = shape.slices
-            return JointStateFields(items[0], items[1], shape.strings["name"], items[s["position"]],
-                                    items[s["velocity"]], items[s["effort"]])
-        msg = _deserialize(data, JointState)
-        if msg is None:
+            return self._from_items(items, self._cdr.shape)
+        try:
+            msg = deserialize_message(data, self.msg_type)
+        except Exception:  # noqa: BLE001 - rclpy raises several kinds for bytes it cannot read
             return None
+        return self._from_message(msg)
+
+    def _from_items(self, items: tuple, shape: cdr.Shape) -> Any:
+        raise NotImplementedError
+
+    def _from_message(self, msg: Any) -> Any:
+        raise NotImplementedError
+
+
+class JointStateReader(_RawReader):
+    """The fields of a serialized sensor_msgs/JointState."""
+
+    schema, msg_type = cdr.joint_state, JointState
+
+    def _from_items(self, items: tuple, shape: cdr.Shape) -> JointStateFields:
+        s = shape.slices
+        return JointStateFields(items[0], items[1], shape.strings["name"], items[s["position"]],
+                                items[s["velocity"]], items[s["effort"]])
+
+    def _from_message(self, msg: JointState) -> JointStateFields:
         stamp = msg.header.stamp
         return JointStateFields(stamp.sec, stamp.nanosec, tuple(msg.name), tuple(msg.position),
                                 tuple(msg.velocity), tuple(msg.effort))
 
 
-class WrenchReader:
-    """``reader(data)``: the fields of a serialized geometry_msgs/WrenchStamped, or None."""
+class WrenchReader(_RawReader):
+    """The fields of a serialized geometry_msgs/WrenchStamped."""
 
-    def __init__(self) -> None:
-        self._cdr = cdr.Reader(cdr.wrench_stamped)
+    schema, msg_type = cdr.wrench_stamped, WrenchStamped
 
-    def __call__(self, data: bytes) -> WrenchFields | None:
-        items = self._cdr.read(data)
-        if items is not None:
-            start = self._cdr.shape.slices["wrench"].start
-            return WrenchFields(items[0], items[1], items[start:start + 3], items[start + 3:start + 6])
-        msg = _deserialize(data, WrenchStamped)
-        if msg is None:
-            return None
+    def _from_items(self, items: tuple, shape: cdr.Shape) -> WrenchFields:
+        start = shape.slices["wrench"].start
+        return WrenchFields(items[0], items[1], items[start:start + 3], items[start + 3:start + 6])
+
+    def _from_message(self, msg: WrenchStamped) -> WrenchFields:
         f, t = msg.wrench.force, msg.wrench.torque
         return WrenchFields(msg.header.stamp.sec, msg.header.stamp.nanosec, (f.x, f.y, f.z),
                             (t.x, t.y, t.z))
 
 
-class ArrayReader:
-    """``reader(data)``: labels and data of a serialized std_msgs/Float64MultiArray, or None."""
+class ArrayReader(_RawReader):
+    """Labels and data of a serialized std_msgs/Float64MultiArray."""
 
-    def __init__(self) -> None:
-        self._cdr = cdr.Reader(cdr.float64_multi_array)
+    schema, msg_type = cdr.float64_multi_array, Float64MultiArray
 
-    def __call__(self, data: bytes) -> ArrayFields | None:
-        items = self._cdr.read(data)
-        if items is not None:
-            shape = self._cdr.shape
-            return ArrayFields(shape.strings["labels"], items[shape.slices["data"]])
-        msg = _deserialize(data, Float64MultiArray)
-        if msg is None:
-            return None
+    def _from_items(self, items: tuple, shape: cdr.Shape) -> ArrayFields:
+        return ArrayFields(shape.strings["labels"], items[shape.slices["data"]])
+
+    def _from_message(self, msg: Float64MultiArray) -> ArrayFields:
         return ArrayFields(tuple(d.label for d in msg.layout.dim), tuple(msg.data))

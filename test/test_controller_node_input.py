@@ -1,0 +1,55 @@
+"""The controller node's raw input path, callback by callback (no spinning): states are
+read from their CDR bytes, reordered by name, refused when unusable, and bytes that are no
+JointState are ignored (the node answers the next good state)."""
+
+import os
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import JointState
+
+from cr_control.nodes.controller_node import ControllerNode
+from cr_control.nodes.raw_messages import JointStateFields
+
+
+@pytest.fixture
+def node():
+    context = Context()
+    rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    controller = ControllerNode("adaptive_impedance", context=context)
+    yield controller
+    controller.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def fields(names, position, velocity) -> JointStateFields:
+    return JointStateFields(1, 0, tuple(names), tuple(position), tuple(velocity), ())
+
+
+def test_joint_arrays_in_our_order_or_empty_when_unusable(node):
+    q, v = node._joint_arrays(fields(["joint2", "joint1"], [2.0, 1.0], [20.0, 10.0]))
+    np.testing.assert_array_equal(q, [1.0, 2.0])
+    np.testing.assert_array_equal(v, [10.0, 20.0])
+    q, v = node._joint_arrays(fields(["joint1", "joint2", "extra"], [1.0, 2.0, 3.0], [0.0] * 3))
+    np.testing.assert_array_equal(q, [1.0, 2.0])
+    for bad in (fields(["joint1", "elbow"], [1.0, 2.0], [0.0, 0.0]),       # a joint missing
+                fields(["joint1", "joint2"], [1.0, 2.0], [0.0])):          # lengths differ
+        q, v = node._joint_arrays(bad)
+        assert q.size == 0 and v.size == 0
+
+
+def test_unreadable_bytes_are_ignored_and_the_next_state_answered(node):
+    node._on_joint_state(b"\x00\x01\x00\x00 not a joint state")
+    node._on_joint_state(b"")
+    assert not node._answered
+    msg = JointState(name=["joint1", "joint2"], position=[3.0358, -2.4401], velocity=[0.0, 0.0])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 7, 5_000_000
+    node._on_joint_state(serialize_message(msg))
+    assert node._answered
+    command = deserialize_message(node._command_bytes, JointState)
+    assert (command.header.stamp.sec, command.header.stamp.nanosec) == (7, 5_000_000)
+    assert list(command.name) == ["joint1", "joint2"] and len(command.effort) == 2
+    assert np.isfinite(command.effort).all() and not command.position
