@@ -82,13 +82,12 @@ class _Walker:
     def _read(self, code: str) -> int:
         return struct.unpack_from(self.endian + code, self.data, HEADER + self.offset)[0]
 
-    def uint32(self, value: int = 0, fixed: bool = True) -> int:
+    def uint32(self, value: int = 0) -> int:
+        """A length, count or size: it fixes the shape."""
         self._align(4)
         if self.data is not None:
-            if HEADER + self.offset + 4 > len(self.data):
-                raise ValueError("truncated")
-            value = self._read("I")
-        self._item("I", 4, 1, fixed, value)
+            value = self._read("I")             # struct.error past the end
+        self._item("I", 4, 1, True, value)
         return value
 
     def string(self, value: str = "") -> str:

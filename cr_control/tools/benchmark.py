@@ -31,10 +31,10 @@ Two ways to carry the cost figures to the machine the targets of issue 6 are sta
 Every target is printed with its measured value and PASS/FAIL. With ``--repeat N`` each
 session/echo pair runs N times in ABBA order and the tables and targets show medians (of
 the pairwise differences and ratios for the "vs baseline" rows), each repeat printed. A
-pair during whose session or echo run the hypervisor stole more than :data:`STOLEN_PCT`
-of a core measured the host's other machines, not the loop: it is printed as discarded
-and run again, at most ``--retries`` times per layout (steal is the machine's own count,
-``/proc/stat``, the same for session and echo pair).
+pair during whose session or echo run other processes and the hypervisor's steal took
+more than :data:`DISTURBED_PCT` of a core measured the machine's neighbours, not the
+loop: it is printed as discarded and run again, at most ``--retries`` times per layout
+(the machine's own counts, ``/proc/stat``; the same rule for session and echo pair).
 
 Whole-run loop figures come from the last ``/plant/timing`` message (``total_*`` fields)
 and the plant's "done:" log line; CPU is read from ``/proc/<pid>/stat`` (utime + stime)
@@ -98,12 +98,10 @@ from cr_control.tools.session import (
 from cr_sim.loop_stats import percentiles
 
 SCHEME = "adaptive_impedance"
-#: CPU used by other processes (% of one core) above which a run is flagged as disturbed.
+#: CPU taken by other processes and by the hypervisor's steal (% of one core) above which
+#: a run is disturbed: flagged, and a session/echo pair with a disturbed run is run again
+#: (at most ``--retries`` times per layout).
 DISTURBED_PCT = 20.0
-#: Hypervisor steal (% of one core) during either run of a session/echo pair above which
-#: the pair is run again (at most ``--retries`` times per layout): it measured the other
-#: machines on the host, not the loop.
-STOLEN_PCT = 20.0
 #: ns per plain Python loop iteration of the machine the cost targets are stated for.
 REFERENCE_LOOP_NS = 300.0
 #: The code issue 6 measured its "before" table on (the last commit before the work on it).
@@ -349,16 +347,10 @@ def format_repeats(runs: Sequence[tuple[str, dict[str, Any]]]) -> str:
         lines.append(f"{title} vs its echo pair, each repeat: " + "; ".join(cells))
     for title, fig in runs:
         for d in fig.get("discarded") or []:
-            lines.append(f"{title} pair #{d['pair']} discarded (hypervisor steal "
-                         f"{fmt(d.get('cpu_steal_pct'), '.0f')} % / {fmt(d.get('echo_steal_pct'), '.0f')} "
-                         f"% of a core, session / echo pair): {fmt(d.get('rate_hz'), '.1f')} Hz "
+            lines.append(f"{title} pair #{d['pair']} discarded (session: {_taken(d, 'cpu_')}; "
+                         f"echo pair: {_taken(d, 'echo_')}): {fmt(d.get('rate_hz'), '.1f')} Hz "
                          f"{fmt(d.get('fresh_diff_pp'), '+.2f')} pp p99 {fmt(d.get('p99_ratio'), '.2f')}x")
     return "\n".join(lines)
-
-
-def stolen(fig: dict[str, Any]) -> bool:
-    """Whether the hypervisor stole more than :data:`STOLEN_PCT` of a core during a run."""
-    return (fig.get("cpu_steal_pct") or 0.0) > STOLEN_PCT
 
 
 RunFn = Callable[[str], dict[str, Any]]
@@ -367,10 +359,11 @@ RunFn = Callable[[str], dict[str, Any]]
 def run_pairs(run_session: RunFn, run_echo: RunFn, repeat: int, retries: int,
               progress: Callable[[str], None]) -> tuple[list[dict], list[dict], list[dict]]:
     """``repeat`` session/echo pairs of one layout in ABBA order (each run function takes
-    the pair's tag, " #1", " #2", ...). A pair during whose session or echo run the
-    hypervisor stole more than :data:`STOLEN_PCT` of a core is run again, ``retries`` times
-    at most; returns the sessions (with :func:`ratios` to their echo pair), the echo pairs,
-    and the discarded pairs (their :data:`REPEAT_KEYS` and both runs' steal)."""
+    the pair's tag, " #1", " #2", ...). A pair with a :func:`disturbed` run (other
+    processes and the hypervisor's steal above :data:`DISTURBED_PCT` of a core) is run
+    again, ``retries`` times at most; returns the sessions (with :func:`ratios` to their
+    echo pair), the echo pairs, and the discarded pairs (their :data:`REPEAT_KEYS` and the
+    echo run's CPU taken by others and by steal)."""
     sessions: list[dict] = []
     echoes: list[dict] = []
     discarded: list[dict] = []
@@ -383,17 +376,21 @@ def run_pairs(run_session: RunFn, run_echo: RunFn, repeat: int, retries: int,
         else:
             echo, session = run_echo(tag), run_session(tag)
         session.update(ratios(session, echo))
-        if (stolen(session) or stolen(echo)) and len(discarded) < retries:
-            discarded.append({"pair": attempt, "echo_steal_pct": echo.get("cpu_steal_pct"),
+        if (disturbed(session) or disturbed(echo)) and len(discarded) < retries:
+            discarded.append({"pair": attempt, "echo_others_pct": echo.get("cpu_others_pct"),
+                              "echo_steal_pct": echo.get("cpu_steal_pct"),
                               **{k: session.get(k) for k in REPEAT_KEYS}})
-            progress(f"pair #{attempt}: the hypervisor stole "
-                     f"{fmt(session.get('cpu_steal_pct'), '.0f')} % / "
-                     f"{fmt(echo.get('cpu_steal_pct'), '.0f')} % of a core (session / echo pair): "
-                     "discarded, run again")
+            progress(f"pair #{attempt} disturbed: {_taken(session, 'cpu_')} (session), "
+                     f"{_taken(echo, 'cpu_')} (echo pair): discarded, run again")
             continue
         sessions.append(session)
         echoes.append(echo)
     return sessions, echoes, discarded
+
+
+def _taken(fig: dict[str, Any], prefix: str) -> str:
+    return (f"others {fmt(fig.get(prefix + 'others_pct'), '.0f')} %, steal "
+            f"{fmt(fig.get(prefix + 'steal_pct'), '.0f')} % of a core")
 
 
 def disturbed(fig: dict[str, Any]) -> bool:
@@ -1311,10 +1308,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=int, default=1,
                    help="session/echo pairs per layout, in ABBA order; the tables and targets show "
                         "the median over the pairs, the spread is printed (default 1)")
-    p.add_argument("--retries", type=int, default=2,
-                   help=f"per layout, how many session/echo pairs may be run again because the "
-                        f"hypervisor stole more than {STOLEN_PCT:g}%% of a core during one of their "
-                        "runs (default 2; the discarded pairs are printed)")
+    p.add_argument("--retries", type=int, default=3,
+                   help=f"per layout, how many session/echo pairs may be run again because other "
+                        f"processes and the hypervisor's steal took more than {DISTURBED_PCT:g}%% of "
+                        "a core during one of their runs (default 3; the discarded pairs are printed)")
     p.add_argument("-p", "--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
                    help="a parameter of the sessions, as cr_session's -p (e.g. "
                         f"{SCHEME}.diagnostics_every=10); the echo pairs stay as they are")
