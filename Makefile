@@ -36,8 +36,8 @@ test: $(STAMP)
 ## Real-time figures and issue 6's targets (PASS/FAIL): sessions across processes, composed and
 ## with the recorder vs a bare rclpy echo pair, the recorder's CPU per message, lockstep and
 ## offline speed, costs carried to the issue's machine by the issue's own code run beside ours
-## (and by a loop calibration). Three ABBA repeats per pair, ~8 min; BENCH_ARGS e.g.
-## "--repeat 1 --duration 5 --skip-lockstep" for a quick look.
+## (and by a loop calibration). Three ABBA repeats per pair (disturbed pairs run again),
+## 6-12 min; BENCH_ARGS e.g. "--repeat 1 --duration 5 --skip-lockstep" for a quick look.
 BENCH_ARGS ?= --repeat 3
 BENCH_JSON ?= $(OUT)/benchmark.json
 benchmark: $(STAMP)
