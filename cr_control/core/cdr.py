@@ -75,7 +75,7 @@ class _Walker:
         self.fmt.append(code)
         if fixed:
             self.fixed.append(self.n_items)
-        self.values.extend([value] * count if count > 1 else [value])
+        self.values.extend([value] * count)
         self.n_items += count
         self.offset += size
 
