@@ -304,3 +304,41 @@ def test_writer_file_opens_in_strict_readers(tmp_path):
     assert bag["message_count"] == 2 * n
     counts = {t["topic_metadata"]["name"]: t["message_count"] for t in bag["topics_with_message_count"]}
     assert counts == {topics.JOINT_STATES: n, STATUS: n, "/never": 0}
+
+
+def test_a_topic_first_seen_through_a_subscriber_is_recorded_reliably(tmp_path, ros_env):
+    """A topic is in the graph as soon as anyone subscribes (the plant to /joint_commands
+    before the controller publishes): the recorder waits for a publisher and adapts to
+    its offer (reliable) instead of subscribing at once, best effort, with nothing to
+    adapt to (which lost messages in lockstep sessions)."""
+    n, late = 200, "/late_topic"
+    output = tmp_path / "late.mcap"
+    env = {**ros_env, "PYTHONPATH": os.pathsep.join(
+        p for p in (str(REPO), ros_env.get("PYTHONPATH", "")) if p)}
+    session = SyntheticSession(int(env["ROS_DOMAIN_ID"]))
+    session.node.create_subscription(Float64MultiArray, late, lambda _: None, QOS)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cr_control.recording.recorder", "--ros-args",
+         "-p", f"output:={output}", "-p", f"topics:=[{late}]", "-p", "ready_timeout:=1.0"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        session.spin_until(lambda: session.ready, "the recorder's ready message", proc)
+        publisher = session.node.create_publisher(Float64MultiArray, late, QOS)
+        session.spin_until(lambda: publisher.get_subscription_count() >= 2,
+                           "the recorder's subscription", proc)
+        for i in range(n):
+            publisher.publish(Float64MultiArray(data=[float(i)]))
+        assert publisher.wait_for_all_acked(Duration(seconds=WAIT_S))
+        proc.send_signal(signal.SIGINT)
+        session.spin_until(lambda: proc.poll() is not None, "the recorder to exit")
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=WAIT_S)
+        session.close()
+    content = read_file(output)
+    assert [m.data[0] for m in content["decoded"][late]] == [float(i) for i in range(n)]
+    channel = next(c for c in content["summary"].channels.values() if c.topic == late)
+    offered = yaml.safe_load(channel.metadata["offered_qos_profiles"])
+    assert [q["reliability"] for q in offered] == ["reliable"]

@@ -21,6 +21,13 @@ chunk with one ``struct.pack`` per message (:class:`McapBagWriter`). Measured wi
 CPU per message than a callback per message into the ``mcap`` package's writer; what is
 left is mostly the middleware's own receive path.
 
+A topic is subscribed once it has a publisher, with the QoS adapted to the offers
+(reliable when every publisher is; :func:`request_qos`), as rosbag2 does. Not when it
+first shows in the graph: a subscriber alone puts it there (the plant subscribes to
+/joint_commands before the controller publishes), and with no offer to adapt to the
+subscription would be best effort: lossy, and invisible to a lockstep writer waiting
+for its readers' acknowledgements.
+
 Once every topic of ``topics`` has a subscription with a matched publisher of a known
 node (or ``ready_timeout`` passed, with a warning naming what is missing), the recorder
 saves the parameters of the ``parameter_nodes`` (got through the standard
@@ -749,9 +756,15 @@ class Recorder(Node):
             self.get_logger().info(f"ready ({topics.RECORDER_READY})")
 
     def _subscribe_new_topics(self) -> None:
+        """Subscribe to the wanted topics that have a publisher now.
+
+        Not before: a topic is in the graph as soon as anyone subscribes to it (the plant
+        to /joint_commands, the controller to /joint_states), and with no offer to adapt
+        to the subscription would be best effort, i.e. lossy (request_qos).
+        """
         graph = dict(self.get_topic_names_and_types())
         for name in self._wanted:
-            if name in self._recorded or name not in graph:
+            if name in self._recorded or name not in graph or self.count_publishers(name) < 1:
                 continue
             types = graph[name]
             if len(types) > 1 and name not in self._warned_types:
