@@ -10,6 +10,9 @@
   before); a second, different command for the same state takes effect a period later.
 - ``lockstep``: publishes a state (and /clock) and steps one period only when the
   command computed from that state arrives: deterministic, faster than real time.
+  Nothing is lost to a slow reader: every 250 states the plant waits until every
+  reader of its topics (a recorder too) has acknowledged them, and the whole loop waits
+  with it (:mod:`cr_control.nodes.lockstep`).
 
 Publishes /joint_states, the force/torque sensor wrench (same stamp), per-second loop
 statistics on /plant/timing, and stops by itself after ``duration`` seconds of
@@ -50,14 +53,12 @@ per tick. The time spent building and publishing the state is reported as
 
 from __future__ import annotations
 
-import contextlib
 import sys
 import time
 from dataclasses import replace
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
@@ -67,10 +68,11 @@ from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension, String
 
 from cr_control.core import cdr, topics
 from cr_control.core.parameters import Param, ParameterError
+from cr_control.nodes.lockstep import ReaderPacer, wait_for_readers
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.raw_messages import JointStateFields, JointStateReader
 from cr_control.nodes.ros_parameters import declare, police_changes
-from cr_control.nodes.spin import RCLError, quiet_on_shutdown, spin_nodes, start_nodes
+from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
 from cr_sim.loop_stats import LoopStats
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS
@@ -235,6 +237,8 @@ class PlantNode(Node):
         self._sensors_out = self._sensors.array("data")
         self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, PUBLISH_QOS)
         self.clock_pub = self.create_publisher(Clock, topics.CLOCK, PUBLISH_QOS) if self.lockstep else None
+        self._pacer = ReaderPacer(self, [self.state_pub, self.wrench_pub, self.sensors_pub,
+                                         self.clock_pub])   # used in lockstep
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                  topics.PLANT_TIMING_FIELDS)
         # Outgoing messages, built once as CDR bytes and refilled in place every tick.
@@ -317,9 +321,7 @@ class PlantNode(Node):
             f"done: {self.plant.time:.3f} s simulated in {time.monotonic() - self._t0_wall:.3f} s wall, "
             f"{self.stats.total_cycles} cycles, {self.stats.commands_refused} commands refused, "
             f"{self.stats.commands_clipped} clipped" + (", in safe stop" if self.safe_stop else ""))
-        for publisher in list(self.publishers):   # the last messages reach the recorder
-            with contextlib.suppress(RCLError, RuntimeError):
-                publisher.wait_for_all_acked(Duration(seconds=2.0))
+        wait_for_readers(list(self.publishers), 2.0)   # the last messages reach the recorder
         self.finished.set_result(True)
 
     def _out_of_time(self) -> bool:
@@ -438,6 +440,7 @@ class PlantNode(Node):
         if self._out_of_time():
             self._finish()
             return
+        self._pacer.published()
         self._publish_state(*divmod(int(round(self.plant.time * 1e9)), 1_000_000_000))
 
     def _step_ahead(self) -> None:

@@ -9,12 +9,13 @@ import os
 import pytest
 from ros_probe import domains_taken, next_domain, release_domains
 
-from cr_control.core.ros_env import isolated_env
+from cr_control.core.ros_env import isolated_env, use_node_dds_profile
 
 # Tests that call rclpy.init in this process inherit these; the id is held for the run.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ["ROS_DOMAIN_ID"] = str(next_domain())
 os.environ.setdefault("MPLBACKEND", "Agg")
+use_node_dds_profile()   # nodes made in this process run as they do in their executables
 
 
 @pytest.fixture(autouse=True, scope="module")

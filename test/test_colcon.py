@@ -115,6 +115,9 @@ def test_install_tree_has_what_ros_tools_look_for(workspace):
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE).is_file()
     site = _site_packages(workspace)
     assert (site / "cr_control" / "__init__.py").is_file() and (site / "cr_sim" / "__init__.py").is_file()
+    # The nodes' Fast DDS profile (cr_control.core.ros_env.NODE_DDS_PROFILE) is package data.
+    assert (site / "cr_control" / "core" / "fastdds_profile.xml").read_bytes() == (
+        REPO / "cr_control" / "core" / "fastdds_profile.xml").read_bytes()
 
 
 def _installed_env(ws: Path, ros_env: dict[str, str]) -> dict[str, str]:

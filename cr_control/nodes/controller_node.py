@@ -7,6 +7,10 @@ and its labelled ~/reference and ~/status (topics.py) every ``diagnostics_every`
 cycles. Gains are ROS parameters (config/<scheme>.yaml), live-tunable through the
 standard parameter services.
 
+With ``lockstep`` set (the plant steps on this node's commands; ``cr_session --mode
+lockstep`` sets it), the node waits every 250 cycles until the readers of its topics (a
+recorder) acknowledged them, so a recording loses nothing (:mod:`cr_control.nodes.lockstep`).
+
 Hot path (issue 6): the loop's messages are taken and published serialized
 (``raw=True`` subscriptions, ``publish(bytes)``): joint states, wrenches and plant
 sensors are read straight from their CDR bytes (:mod:`cr_control.nodes.raw_messages`),
@@ -46,6 +50,7 @@ from std_msgs.msg import Float64MultiArray, String
 
 from cr_control.core import cdr, topics
 from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, Param
+from cr_control.nodes.lockstep import ReaderPacer
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.raw_messages import (
     ArrayReader,
@@ -136,6 +141,9 @@ class ControllerNode(Node):
         self.status_pub = publish(Float64MultiArray, f"~/{topics.STATUS_SUFFIX}", PUBLISH_QOS)
         forward = self.controller.values["forward_command_topic"]
         self.forward_pub = publish(Float64MultiArray, forward, PUBLISH_QOS) if forward else None
+        # Lockstep: every 250 cycles, wait until the readers (a recorder) acknowledged.
+        self._pacer = (ReaderPacer(self, [self.command_pub, self.forward_pub, self.reference_pub,
+                                          self.status_pub]) if values["lockstep"] else None)
         # Outgoing messages, built once as CDR bytes and refilled in place every cycle.
         field = "position" if self.controller.command_interface == "position" else "effort"
         self._command = cdr.Writer(cdr.joint_state, name=self.joint_names, **{field: n})
@@ -337,6 +345,8 @@ class ControllerNode(Node):
             self.reference_pub.publish(self._reference.message())
             self.status_pub.publish(self._status.message())
         self._out_time_us = (time.perf_counter() - out_start) * 1e6
+        if self._pacer is not None:
+            self._pacer.published()
 
 
 def main(scheme: str | None = None, args: list[str] | None = None) -> int:

@@ -16,7 +16,9 @@ is invalid") and Python raises KeyboardInterrupt at whatever bytecode runs, ofte
 a timer callback: EventsExecutor reports either as ``[FATAL] Exception in 'timers'
 callback``. :func:`spin_nodes` therefore takes SIGINT itself and ends the loop between
 callbacks; callbacks that publish are also wrapped with :func:`quiet_on_shutdown` for a
-shutdown coming from elsewhere (SIGTERM, ``rclpy.shutdown()``).
+shutdown coming from elsewhere (SIGTERM, ``rclpy.shutdown()``). On the way out each
+process waits (at most ``LAST_MESSAGES_TIMEOUT_S``) until its readers acknowledged its
+last messages, so a recorder a little behind still gets them.
 """
 
 from __future__ import annotations
@@ -28,19 +30,23 @@ import signal
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import Any
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.task import Future
 
 from cr_control.core.parameters import ParameterError
+from cr_control.core.ros_env import use_node_dds_profile
 
 #: rclpy's error for failures in rcl (a bad params file at init, a publish after shutdown).
 RCLError = _rclpy.RCLError
@@ -78,6 +84,7 @@ def _held_stderr() -> Iterator[list[bytes]]:
 def start_nodes(label: str, argv: list[str], make: Callable[[], list[Node]]) -> list[Node] | None:
     """``rclpy.init(argv)`` and ``make()`` the nodes; on a refused start print
     ``<label>: refused to start: <reason>`` on stderr and return None."""
+    use_node_dds_profile()   # before init: Fast DDS reads its profile once per process
     try:
         with _held_stderr() as held:
             try:
@@ -130,6 +137,23 @@ def _stop_on_first_interrupt(until: Future) -> Callable[[int, Any], None]:
     return handler
 
 
+#: On the way out, a node waits at most this long for its readers to acknowledge its
+#: last messages (a recorder a little behind still gets them).
+LAST_MESSAGES_TIMEOUT_S = 2.0
+
+
+def wait_for_readers(publishers: Sequence[Publisher], timeout_s: float) -> bool:
+    """Wait until every reader acknowledged what ``publishers`` sent, at most ``timeout_s``
+    in all; False if some had not by then (a destroyed publisher counts as done)."""
+    deadline = time.monotonic() + timeout_s
+    acked = True
+    for publisher in publishers:
+        left = max(0.0, deadline - time.monotonic())
+        with suppress(RCLError, RuntimeError):
+            acked = publisher.wait_for_all_acked(Duration(seconds=left)) and acked
+    return acked
+
+
 def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
     """Spin ``nodes`` on one EventsExecutor until Ctrl-C, shutdown or ``until`` completes."""
     # Long-lived nodes allocate little garbage that cycles; keep the collector from
@@ -158,6 +182,8 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
         if in_main:
             signal.signal(signal.SIGINT, previous)
         executor.shutdown()
+        if rclpy.ok():
+            wait_for_readers([p for node in nodes for p in node.publishers], LAST_MESSAGES_TIMEOUT_S)
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()

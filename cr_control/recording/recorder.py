@@ -14,9 +14,9 @@ starts with a ``std_msgs/Header`` and the receive time otherwise.
 Per-message cost (it shares a 2-core machine with a 1 kHz loop): the subscriptions
 live on a hidden second node that no executor spins, so an arriving message does not
 wake this process's Python thread; every ``SLICE_S`` the recorder takes what arrived
-on each topic (raw bytes, reliable, ``SUBSCRIPTION_DEPTH`` deep: nothing is
-overwritten while it waits), sorts the batch by receive time and appends it to the open
-chunk with one ``struct.pack`` per message (:class:`McapBagWriter`). Measured with
+on each topic (raw bytes, KEEP_ALL: nothing is overwritten while it waits), sorts the
+batch by receive time and appends it to the open chunk with one ``struct.pack`` per
+message (:class:`McapBagWriter`). Measured with
 ``cr_benchmark --only-recorder-load`` (a session's five 1 kHz topics): about 2.2x less
 CPU per message than a callback per message into the ``mcap`` package's writer; what is
 left is mostly the middleware's own receive path.
@@ -41,7 +41,8 @@ its initial parameters are all in the file. Live changes are in the recorded
 Nothing lost is checked, not assumed: on a topic with one publisher, a gap in the
 publisher's sequence numbers means messages that never reached the recorder (the
 middleware dropped them, e.g. a reliable writer's KEEP_LAST history overtaking a reader
-starved of CPU); the exit line reports them per topic ("N missed").
+starved of CPU in real time); the exit line reports them per topic ("N missed"). In
+lockstep the loop waits for the recorder instead (:mod:`cr_control.nodes.lockstep`).
 
 SIGINT or SIGTERM ends the session: the recorder keeps taking messages until the
 topics fall quiet (at most ``DRAIN_MAX_S``), writes all of them, then the summary and
@@ -130,10 +131,12 @@ DEFAULT_TOPICS = [
 ]
 DEFAULT_OPTIONAL_TOPICS = [topics.CLOCK, topics.PLANT_SENSORS]
 
-#: Reader history of the recorder's subscriptions. Deeper than the control loop's
-#: topics.QOS_DEPTH so that a chunk compression or a scheduling hiccup on a busy machine
-#: never overwrites messages that arrived but were not yet taken (costs only memory).
-SUBSCRIPTION_DEPTH = 2000  # 2 s at 1 kHz: a lockstep loop on a loaded machine outruns it briefly
+#: Reader history of the recorder's subscriptions: KEEP_ALL, so that a chunk compression
+#: or a scheduling hiccup on a busy machine never overwrites messages that arrived but
+#: were not yet taken. Fast DDS bounds it (5000 samples per reader, its default resource
+#: limit, measured) and, when it is full, stops acknowledging: a lockstep plant, which
+#: waits for its readers' acknowledgements, then waits for the recorder (plant_node.py).
+SUBSCRIPTION_HISTORY = HistoryPolicy.KEEP_ALL
 #: The executor runs in slices of this length; between slices the recorder discovers
 #: topics, checks readiness and parameter requests, and notices a stop request.
 SLICE_S = 0.1
@@ -279,7 +282,7 @@ def request_qos(offered: Sequence[QoSProfile]) -> QoSProfile:
     transient = bool(offered) and all(
         q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
     return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=SUBSCRIPTION_DEPTH,
+        history=SUBSCRIPTION_HISTORY,
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
 
@@ -713,7 +716,7 @@ class Recorder(Node):
         self.output = Path(self.get_parameter("output").value).expanduser()
         self.writer = McapBagWriter(self.output, compression=self.get_parameter("compression").value)
         # The subscriptions live on a second, hidden node that no executor spins: messages
-        # wait in the middleware's history (SUBSCRIPTION_DEPTH) until take_all() takes them
+        # wait in the middleware's history (SUBSCRIPTION_HISTORY) until take_all() takes them
         # in one batch per slice, instead of waking this thread for every message.
         self._reader = Node("_recorder_reader", context=self.context, use_global_arguments=False,
                             start_parameter_services=False, enable_rosout=False)

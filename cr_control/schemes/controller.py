@@ -58,6 +58,11 @@ COMMON_PARAMETERS = [
           "(integer >= 1). 1 = every cycle, as the thesis figures and the lockstep "
           "determinism tests need; costs one in/out message pair per cycle (out_time_us).",
           "integer"),
+    Param("lockstep", False, "The plant steps on this node's commands (cr_session --mode "
+          "lockstep sets it): every 250 cycles the node waits until every reader of its "
+          "topics (a recorder) acknowledged them, so a recording loses nothing. Leave it off "
+          "against a plant in real time: such a wait can last a heartbeat (10 ms).", "bool",
+          read_only=True),
 ]
 
 #: Faults are logged at most this often (s); the count in between is reported.

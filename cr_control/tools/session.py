@@ -169,6 +169,7 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
     params["plant"].update(default_plant_overrides(cfg.scheme))
     params["plant"].update(scenario=scenario, mode=cfg.mode, duration=float(cfg.duration),
                            wait_for_recorder=cfg.record)
+    params[cfg.scheme]["lockstep"] = cfg.mode == "lockstep"
     if cfg.mode == "realtime":
         # Each publish costs about as much as the whole control law (benchmark: controller
         # "out" 426 us for command + reference + status vs 150 us with decimated

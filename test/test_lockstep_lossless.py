@@ -1,0 +1,156 @@
+"""Lockstep recording loses nothing to a slow reader, by construction (issue 6).
+
+A lockstep loop runs several times faster than real time; a recorder that falls behind
+(starved of CPU on a 2-core machine) used to lose messages: the plant's KEEP_LAST writer
+history overtook it, or its own reader history overflowed. Now the lockstep plant waits
+for its readers' acknowledgements every ``LOCKSTEP_ACK_EVERY`` states (heartbeats every
+10 ms, cr_control/core/fastdds_profile.xml, keep the wait short), and the recorder's
+KEEP_ALL reader stops acknowledging when full, so the whole loop waits for it.
+
+- The recorder process stopped (SIGSTOP) for 2 s in the middle of a lockstep session:
+  every state, command and status is in the MCAP, the recorder reports none missed, and
+  every loop topic was subscribed reliably. (Before: the recorder subscribed to
+  /joint_commands and /joint_states as soon as the plant's or controller's subscription
+  put them in the graph, with no offer to adapt to: best effort, lossy; and a 1.5 s stop
+  lost 3300 messages of every topic once that was fixed, the writers' history overtaken.)
+- A reader with the recorder's QoS that takes nothing for 4 s while the plant would
+  publish 8000 states: the plant waits for it (Fast DDS holds 5000 for the reader), and in
+  the end every state arrives, sequence numbers and stamps without a gap.
+- The nodes' processes use the package's Fast DDS profile unless the user chose one.
+"""
+
+import os
+import signal
+import sys
+import threading
+import time
+
+import numpy as np
+from rclpy.node import Node
+from ros_probe import RosProbe, next_domain, start_node, stop_node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+
+from cr_control.analysis.analyze import load_session
+from cr_control.core import topics
+from cr_control.core.ros_env import (
+    DDS_PROFILE_IN_CWD,
+    DDS_PROFILE_VARIABLE,
+    NODE_DDS_PROFILE,
+    use_node_dds_profile,
+)
+from cr_control.nodes.qos import PUBLISH_QOS, READY_QOS
+from cr_control.recording.recorder import request_qos
+from cr_control.tools.session import Session, SessionConfig
+
+PLANT = [sys.executable, "-m", "cr_sim.plant_node"]
+CONTROLLER = [sys.executable, "-m", "cr_control.nodes.controller_node"]
+
+
+def _wait_for_line(path, text: str, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not (path.exists() and text in path.read_text(errors="replace")):
+        assert time.monotonic() < deadline, f"no {text!r} in {path}"
+        time.sleep(0.05)
+
+
+def _offered_reliability(mcap) -> dict[str, list[str]]:
+    """Reliability of every offer recorded per channel (rosbag2's offered_qos_profiles)."""
+    from mcap.reader import make_reader
+
+    from cr_control.core import ros_yaml
+
+    with open(mcap, "rb") as f:
+        channels = make_reader(f).get_summary().channels.values()
+        return {c.topic: [q["reliability"] for q in ros_yaml.load(c.metadata["offered_qos_profiles"])
+                          or []] for c in channels}
+
+
+def test_a_stopped_recorder_loses_nothing_in_lockstep(tmp_path):
+    duration = 6.0
+    cfg = SessionConfig(scheme="adaptive_impedance", duration=duration, mode="lockstep",
+                        out=tmp_path, domain_id=next_domain(), name="run")
+    session = Session(cfg, progress=lambda _: None)
+    result: dict = {}
+    runner = threading.Thread(target=lambda: result.setdefault("run", session.run()))
+    runner.start()
+    try:
+        _wait_for_line(session.logs / "plant.log", "controller connected: starting")
+        time.sleep(0.3)
+        recorder = session.processes["recorder"].pid
+        os.kill(recorder, signal.SIGSTOP)
+        time.sleep(2.0)                    # the loop would make ~6000 states meanwhile
+        os.kill(recorder, signal.SIGCONT)
+    finally:
+        runner.join()
+    s = load_session(result["run"].mcap)
+    n = int(duration * 1000)
+    assert len(s.joint_states.time) == n and len(s.joint_commands.time) == n
+    assert len(s.status["stamp"]) == n
+    assert np.allclose(np.diff(s.status["stamp"]), 1e-3, atol=1e-9)
+    log = (session.logs / "recorder.log").read_text()
+    assert "missed" not in log and "wrote" in log
+    # Every loop topic was subscribed once its publisher was there: reliable, offer known.
+    offered = _offered_reliability(result["run"].mcap)
+    for topic in (topics.JOINT_STATES, topics.WRENCH, topics.JOINT_COMMANDS, topics.CLOCK,
+                  topics.status_topic("adaptive_impedance")):
+        assert offered[topic] == ["reliable"], (topic, offered[topic])
+    assert "acknowledged nothing" not in (session.logs / "plant.log").read_text()
+
+
+def test_a_reader_that_takes_nothing_holds_the_plant_back(ros_env):
+    states = 8000
+    probe = RosProbe(int(ros_env["ROS_DOMAIN_ID"]))
+    # Like the recorder: a subscription on a node nobody spins, taken by hand.
+    reader = Node("_lossless_reader", context=probe.context)
+    sub = reader.create_subscription(JointState, topics.JOINT_STATES, lambda _: None,
+                                     request_qos([PUBLISH_QOS]), raw=True)
+    ready = probe.node.create_publisher(Bool, topics.RECORDER_READY, READY_QOS)
+    procs = [start_node([*CONTROLLER, "adaptive_impedance"], ros_env, "-p", "lockstep:=true"),
+             start_node(PLANT, ros_env, "-p", "mode:=lockstep", "-p", f"duration:={states / 1000}",
+                        "-p", "wait_for_recorder:=true")]
+    taken: list[tuple[int, int]] = []   # (publication sequence number, stamp in ns)
+
+    def take_all() -> int:
+        before = len(taken)
+        while (item := sub.handle.take_message(JointState, True)) is not None:
+            data, info = item
+            sec, nanosec = np.frombuffer(data, dtype="<i4", count=2, offset=4)
+            taken.append((info["publication_sequence_number"], int(sec) * 10**9 + int(nanosec)))
+        return len(taken) - before
+
+    try:
+        assert probe.spin_until(lambda: sub.get_publisher_count() == 1, 30.0), "no plant"
+        ready.publish(Bool(data=True))      # the plant starts only now: we see its first state
+        time.sleep(4.0)                     # ~12000 states' time at lockstep speed
+        held = procs[1].poll() is None      # the plant waits for us
+        deadline = time.monotonic() + 120.0
+        while procs[1].poll() is None and time.monotonic() < deadline:
+            take_all()
+            time.sleep(0.05)
+        time.sleep(0.5)
+        take_all()
+    finally:
+        outputs = [stop_node(p)[1] for p in procs]
+        reader.destroy_node()
+        probe.close()
+    assert procs[1].returncode == 0, outputs[1]
+    assert held
+    sequence = np.array([t[0] for t in taken])
+    stamps = np.array([t[1] for t in taken])
+    assert len(taken) == states, len(taken)
+    assert np.array_equal(sequence, np.arange(sequence[0], sequence[0] + states))
+    assert np.array_equal(stamps, np.arange(states) * 1_000_000)
+    assert "acknowledged nothing" not in outputs[1]
+
+
+def test_nodes_use_the_package_dds_profile_unless_the_user_chose_one(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    env: dict[str, str] = {}
+    assert use_node_dds_profile(env) and env[DDS_PROFILE_VARIABLE] == str(NODE_DDS_PROFILE)
+    assert "<heartbeatPeriod>" in NODE_DDS_PROFILE.read_text()
+    mine = {DDS_PROFILE_VARIABLE: "/etc/my_profile.xml"}
+    assert not use_node_dds_profile(mine) and mine[DDS_PROFILE_VARIABLE] == "/etc/my_profile.xml"
+    (tmp_path / DDS_PROFILE_IN_CWD).write_text("<dds/>")   # Fast DDS reads this one then
+    env = {}
+    assert not use_node_dds_profile(env) and env == {}
