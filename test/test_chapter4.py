@@ -6,6 +6,7 @@ Run lengths: the plant is lightly damped (poles near -0.02 +- 0.78j) and A0's sl
 """
 
 import time
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -118,6 +119,16 @@ def test_diophantine_solution_satisfies_4_65_identically():
                  0.0125, 0.2375, 0.8125, 0.9625, 0.375]
     assert np.allclose(TRUE_THETA_F_CASE1, design_md, atol=6e-4)
     assert diophantine.solve(TRUE_THETA[1], 0.7, 0.5, [1, 19, 65, 77, 30])["r"] == pytest.approx(-0.345)
+
+
+def test_diophantine_solution_is_the_exact_one_rounded_once():
+    """Exact arithmetic, no LAPACK: the shipped theta_f_hat_0 default is the same on every
+    machine (a LAPACK solve differed in the last bits between two of ours)."""
+    for case in (1, 2, 3):
+        exact = diophantine.closed_form([Fraction(x) for x in TRUE_THETA[case]], Fraction(0.7),
+                                        Fraction(0.5), [Fraction(o) for o in (1, 19, 65, 77, 30)])
+        sol = diophantine.solve(TRUE_THETA[case], 0.7, 0.5, [1.0, 19.0, 65.0, 77.0, 30.0])
+        assert sol["theta_f"].tolist() == [float(v) for v in exact]
 
 
 def test_generic_design_reproduces_4_34_4_49_4_50_4_56():
