@@ -131,11 +131,13 @@ def _installed_env(ws: Path, ros_env: dict[str, str]) -> dict[str, str]:
     env["PYTHONPATH"] = os.pathsep.join([env["PYTHONPATH"], sysconfig.get_paths()["purelib"]])
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = ros_env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
     env["ROS_DOMAIN_ID"] = ros_env["ROS_DOMAIN_ID"]
+    env["PYTHONFAULTHANDLER"] = "1"     # a hung node killed by SIGABRT logs where it hung
     return env
 
 
 def _stop(procs: dict[str, tuple[subprocess.Popen, Path]]) -> dict[str, int]:
-    """SIGINT to each, as Ctrl-C in `ros2 run`; log sizes at that moment. Kills the hung ones."""
+    """SIGINT to each, as Ctrl-C in `ros2 run`; log sizes at that moment. A node still
+    running STOP_TIMEOUT_S later gets SIGABRT (its Python stacks go to its log), then SIGKILL."""
     sizes = {}
     for what, (proc, log) in procs.items():
         sizes[what] = log.stat().st_size
@@ -145,8 +147,12 @@ def _stop(procs: dict[str, tuple[subprocess.Popen, Path]]) -> dict[str, int]:
         try:
             proc.wait(timeout=STOP_TIMEOUT_S)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+            proc.send_signal(signal.SIGABRT)
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
     return sizes
 
 
@@ -157,7 +163,8 @@ def _check_stopped(what: str, proc: subprocess.Popen, log: Path, size_at_sigint:
     after = text[size_at_sigint:].decode(errors="replace")
     for mark in ("Traceback", "[FATAL]", "[ERROR]"):
         assert mark not in before, f"{what} logged {mark} while running:\n{before[-3000:]}"
-    assert proc.returncode != -signal.SIGKILL, f"{what} did not stop within {STOP_TIMEOUT_S} s of SIGINT"
+    assert proc.returncode not in (-signal.SIGABRT, -signal.SIGKILL), (
+        f"{what} did not stop within {STOP_TIMEOUT_S} s of SIGINT; its log since:\n{after[-6000:]}")
     last = after.strip().splitlines()[-1] if after.strip() else ""
     assert proc.returncode == 0, f"{what} did not shut down cleanly (exit code {proc.returncode}): {last}"
     for mark in ("Traceback", "[FATAL]"):

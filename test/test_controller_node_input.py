@@ -3,6 +3,8 @@ read from their CDR bytes, reordered by name, refused when unusable, and bytes t
 JointState are ignored (the node answers the next good state)."""
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -13,6 +15,7 @@ from sensor_msgs.msg import JointState
 
 from cr_control.nodes.controller_node import ControllerNode
 from cr_control.nodes.raw_messages import JointStateFields
+from cr_control.schemes.registry import SCHEMES
 
 
 @pytest.fixture
@@ -53,3 +56,36 @@ def test_unreadable_bytes_are_ignored_and_the_next_state_answered(node):
     assert (command.header.stamp.sec, command.header.stamp.nanosec) == (7, 5_000_000)
     assert list(command.name) == ["joint1", "joint2"] and len(command.effort) == 2
     assert np.isfinite(command.effort).all() and not command.position
+
+
+WARM_UP_CHECK = """
+import sys
+import numpy as np
+from numba.core.registry import CPUDispatcher
+from cr_control.schemes.registry import SCHEMES, make_controller
+
+def signatures():
+    return {f"{name}.{attr}": len(obj.signatures)
+            for name, mod in list(sys.modules.items()) if name.startswith(("cr_control", "cr_sim"))
+            for attr, obj in vars(mod).items() if isinstance(obj, CPUDispatcher)}
+
+for scheme in sorted(SCHEMES):
+    controller = make_controller(scheme)
+    controller.warm_up()
+    before = signatures()
+    n = controller.n_state
+    for stamp in (0.0, 1e-3):      # as the node passes them: np.array of the message's tuples
+        controller.step(stamp, np.array((0.1,) * n), np.array((0.0,) * n), np.zeros(3))
+    after = signatures()
+    print(scheme, sorted(k for k in after if after[k] != before.get(k, 0)))
+"""
+
+
+def test_warm_up_leaves_nothing_to_compile_in_the_first_cycles():
+    """In a fresh install (a colcon install tree has no kernel cache) a kernel first met in
+    the loop is compiled there: ~1 s of stalled cycles. A fresh process, so nothing an
+    earlier test compiled hides it."""
+    out = subprocess.run([sys.executable, "-c", WARM_UP_CHECK], capture_output=True, text=True,
+                         timeout=300, check=True).stdout
+    lines = out.splitlines()
+    assert len(lines) == len(SCHEMES) and all(line.endswith(" []") for line in lines), out

@@ -263,14 +263,21 @@ class Controller(ABC):
         """The control law at time t (s since the first state), dt since the last call."""
 
     def warm_up(self) -> None:
-        """Run the law once on a throw-away state so the first real cycle does not pay for
-        loading (or compiling) its compiled kernels; ``internal`` is restored afterwards."""
+        """Run the law and :meth:`step`'s checks once on a throw-away state (the argument
+        types a node passes), so the first real cycle does not pay for loading (or, in a
+        fresh install, compiling) the compiled kernels; ``internal`` is restored afterwards."""
         saved = None if self.internal is None else self.internal.copy()
         n = self.n_state
+        q, v, force = np.full(n, 0.3), np.zeros(n), np.zeros(3)
+        values = self.values
+        admit_state(n, values["max_joint_position"], values["max_joint_velocity"], 0.0, q, v, force)
         saved_sensors = self.plant_sensors.copy()
         self.plant_sensors[:] = 0.0
-        self.compute(0.0, 1e-3, np.full(n, 0.3), np.zeros(n), np.zeros(3))
+        out = self.compute(0.0, 1e-3, q, v, force)
         self.plant_sensors[:] = saved_sensors
+        scratch = (_NO_INTERNAL if saved is None else saved).copy()
+        accept_cycle(self.n_joints, values["max_effort"], scratch, scratch.copy(), out.command,
+                     out.status, self._command_slots)
         if saved is not None:
             np.copyto(self.internal, saved)
 
