@@ -3,8 +3,8 @@
     A_f P_r1 + b_3 P_s = P_o A_m,   P_r1 = p + r (monic, degree 1), deg P_s = 4
 
 solved exactly as a triangular linear system in (r, s_4..s_0), then P_r = P_r1 B_f (4.64),
-P_t = P_o B_m / b_3 (4.66) and theta_f = [r_3 - o_3 .. r_0 - o_0, s_4 .. s_0, t_4 .. t_0] (4.69). Closed forms
-(DESIGN.md; the printed r_2, r_1, r_0 are wrong): r = o_3 + 2 zeta omega - a_4,
+P_t = P_o B_m / b_3 (4.66) and theta_f = [r_3 - o_3 .. r_0 - o_0, s_4 .. s_0, t_4 .. t_0]
+(4.69). Closed forms (DESIGN.md; the printed r_2, r_1, r_0 are wrong): r = o_3 + 2 zeta omega - a_4,
 r_3 = r + b_2/b_3, r_2 = (r b_2 + b_1)/b_3, r_1 = (r b_1 + b_0)/b_3, r_0 = r b_0/b_3.
 Polynomials are coefficient arrays, highest power first (numpy.polymul order).
 """
@@ -16,9 +16,16 @@ from fractions import Fraction
 import numpy as np
 
 
+def _reference_coefficients(zeta, omega) -> tuple[list, list]:
+    """(A_m, B_m) of the reference model (4.62) as coefficient lists, in the arithmetic of
+    the arguments (floats, or Fractions for the exact solve)."""
+    return [1, 2 * zeta * omega, omega ** 2], [omega ** 2]
+
+
 def reference_polynomials(zeta: float, omega: float) -> tuple[np.ndarray, np.ndarray]:
     """(A_m, B_m) of the reference model (4.62)."""
-    return np.array([1.0, 2.0 * zeta * omega, omega ** 2]), np.array([omega ** 2])
+    A_m, B_m = _reference_coefficients(float(zeta), float(omega))
+    return np.array(A_m, dtype=float), np.array(B_m, dtype=float)
 
 
 def _polymul(p: list, q: list) -> list:
@@ -46,7 +53,7 @@ def solve(theta, zeta: float, omega: float, observer) -> dict:
     A_f = [Fraction(1), *a]                              # degree 5
     B_f = [x / b3 for x in b]                            # monic, degree 3
     zeta, omega = Fraction(float(zeta)), Fraction(float(omega))
-    A_m, B_m = [Fraction(1), 2 * zeta * omega, omega ** 2], [omega ** 2]
+    A_m, B_m = _reference_coefficients(zeta, omega)
     rhs = _polymul(P_o, A_m)                             # degree 6, monic
     # A_f (p + r) + b3 (s4 p^4 + ... + s0) = rhs, powers 5..0. Unknowns [r, s4, .., s0]:
     # the power-5 row gives r (A_f is monic), power 4-j gives s_{4-j} (lower triangular).
