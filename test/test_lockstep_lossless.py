@@ -7,7 +7,7 @@ for its readers' acknowledgements every ``LOCKSTEP_ACK_EVERY`` states (heartbeat
 10 ms, cr_control/core/fastdds_profile.xml, keep the wait short), and the recorder's
 KEEP_ALL reader stops acknowledging when full, so the whole loop waits for it.
 
-- The recorder process stopped (SIGSTOP) for 2 s in the middle of a lockstep session:
+- The recorder process stopped (SIGSTOP) for 0.8 s in the middle of a lockstep session:
   every state, command and status is in the MCAP, the recorder reports none missed, and
   every loop topic was subscribed reliably. (Before: the recorder subscribed to
   /joint_commands and /joint_states as soon as the plant's or controller's subscription
@@ -39,6 +39,7 @@ from cr_control.core.ros_env import (
     NODE_DDS_PROFILE,
     use_node_dds_profile,
 )
+from cr_control.nodes.lockstep import ACK_EVERY, ReaderPacer
 from cr_control.nodes.qos import PUBLISH_QOS, READY_QOS
 from cr_control.recording.recorder import request_qos
 from cr_control.tools.session import Session, SessionConfig
@@ -79,7 +80,11 @@ def test_a_stopped_recorder_loses_nothing_in_lockstep(tmp_path):
         time.sleep(0.3)
         recorder = session.processes["recorder"].pid
         os.kill(recorder, signal.SIGSTOP)
-        time.sleep(2.0)                    # the loop would make ~6000 states meanwhile
+        # ~2400 states' time at lockstep speed, 5 writer histories: without the waits it
+        # loses hundreds per topic. Under a second: Fast DDS (2.14.5) declares the
+        # shared-memory port of a process frozen for longer dead (healthy_check_timeout_ms,
+        # 1 s), and a writer that saw it so never delivers to that reader again.
+        time.sleep(0.8)
         os.kill(recorder, signal.SIGCONT)
     finally:
         runner.join()
@@ -95,7 +100,8 @@ def test_a_stopped_recorder_loses_nothing_in_lockstep(tmp_path):
     for topic in (topics.JOINT_STATES, topics.WRENCH, topics.JOINT_COMMANDS, topics.CLOCK,
                   topics.status_topic("adaptive_impedance")):
         assert offered[topic] == ["reliable"], (topic, offered[topic])
-    assert "acknowledged nothing" not in (session.logs / "plant.log").read_text()
+    for node in ("plant", "adaptive_impedance"):
+        assert "acknowledged nothing" not in (session.logs / f"{node}.log").read_text()
 
 
 def test_a_reader_that_takes_nothing_holds_the_plant_back(ros_env):
@@ -157,3 +163,34 @@ def test_nodes_use_the_package_dds_profile_unless_the_user_chose_one(tmp_path, m
     (tmp_path / DDS_PROFILE_IN_CWD).write_text("<dds/>")   # Fast DDS reads this one then
     env = {}
     assert not use_node_dds_profile(env) and env == {}
+
+
+class _Publisher:
+    def __init__(self, topic_name: str, acks: bool):
+        self.topic_name, self.acks, self.waits = topic_name, acks, 0
+
+    def wait_for_all_acked(self, timeout) -> bool:
+        self.waits += 1
+        return self.acks
+
+
+class _Node:
+    def __init__(self):
+        self.warnings: list[str] = []
+
+    def get_logger(self):
+        return self
+
+    def warn(self, text: str) -> None:
+        self.warnings.append(text)
+
+
+def test_the_pacer_stops_waiting_for_a_topic_whose_readers_never_answer():
+    """One 10 s wait for a reader that is gone, then none: not 10 s every 250 cycles (a
+    lockstep session crawled at 25 Hz for minutes behind a dead shared-memory port)."""
+    node, good, stuck = _Node(), _Publisher("/status", True), _Publisher("/joint_commands", False)
+    pacer = ReaderPacer(node, [good, None, stuck])
+    for _ in range(3 * ACK_EVERY):
+        pacer.published()
+    assert (good.waits, stuck.waits) == (3, 1)
+    assert len(node.warnings) == 1 and "/joint_commands" in node.warnings[0]

@@ -32,7 +32,13 @@ ACK_TIMEOUT_S = 10.0
 
 class ReaderPacer:
     """Call :meth:`published` once per loop cycle (one message per publisher); every
-    :data:`ACK_EVERY` cycles it waits for the readers of ``publishers``."""
+    :data:`ACK_EVERY` cycles it waits for the readers of ``publishers``.
+
+    A topic whose readers acknowledged nothing for :data:`ACK_TIMEOUT_S` is waited for no
+    more (warned once): such a reader is gone for good — a Fast DDS shared-memory port
+    declared dead after its process froze for over a second (healthy_check_timeout_ms)
+    never delivers again — and waiting for it every :data:`ACK_EVERY` cycles would slow
+    the loop to a crawl."""
 
     def __init__(self, node: Node, publishers: Sequence[Publisher | None]):
         self._node = node
@@ -44,8 +50,10 @@ class ReaderPacer:
         if self._since_acked < ACK_EVERY:
             return
         self._since_acked = 0
-        if not wait_for_readers(self._publishers, ACK_TIMEOUT_S):
-            self._node.get_logger().warn(
-                f"a reader of {self._node.get_name()}'s topics acknowledged nothing for "
-                f"{ACK_TIMEOUT_S:.0f} s: going on without it (it may lose messages)",
-                throttle_duration_sec=10.0)
+        for publisher in list(self._publishers):
+            if not wait_for_readers([publisher], ACK_TIMEOUT_S):
+                self._publishers.remove(publisher)
+                self._node.get_logger().warn(
+                    f"a reader of {publisher.topic_name} acknowledged nothing for "
+                    f"{ACK_TIMEOUT_S:.0f} s: going on without waiting for that topic's "
+                    "readers (they may lose messages)")
