@@ -11,7 +11,7 @@ import pytest
 
 from cr_control.analysis import analyze, chapter6
 from cr_control.core.topics import STATUS_FIELDS
-from cr_control.schemes import flexible_joint_scheme
+from cr_control.schemes.flexible_joint import flexible_joint_scheme
 
 PNG = b"\x89PNG\r\n\x1a\n"
 COMMON = [*STATUS_FIELDS, *flexible_joint_scheme.STATUS]

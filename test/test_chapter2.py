@@ -10,10 +10,10 @@ import pinocchio as pin
 import pytest
 
 from cr_control.core.parameters import resolve
-from cr_control.schemes import moving_object_model as mo
-from cr_control.schemes import rbf_network
-from cr_control.schemes.moving_object_adaptive import MovingObjectAdaptiveController
-from cr_control.schemes.moving_object_nn import MovingObjectNNController
+from cr_control.schemes.blocks import rbf_network
+from cr_control.schemes.closed_chain import moving_object_model as mo
+from cr_control.schemes.closed_chain.moving_object_adaptive import MovingObjectAdaptiveController
+from cr_control.schemes.closed_chain.moving_object_nn import MovingObjectNNController
 from cr_control.schemes.registry import make_controller
 from cr_control.tools.offline import run
 from cr_sim.models.constrained_dynamics import (

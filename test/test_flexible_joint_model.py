@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from cr_control.schemes import flexible_joint_model as fm
-from cr_control.schemes import jets
-from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
+from cr_control.models.arm_model import LinkParameters, TwoLinkArm
+from cr_control.schemes.blocks import jets
+from cr_control.schemes.flexible_joint import flexible_joint_model as fm
 
 # Deliberately unequal links: the regressor holds for any planar 2R arm, only p changes.
 ODD = LinkParameters(length=[0.3, 0.45], com=[0.12, 0.2], mass=[0.1, 0.35], inertia=[0.3, 0.05])

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from cr_control.schemes.task_space import ArmTaskSpace, inverse_2x2
-from cr_sim.models.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
+from cr_control.models.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
+from cr_control.schemes.blocks.task_space import ArmTaskSpace, inverse_2x2
 from cr_sim.models.surfaces import circle, contact_force, plane
 from cr_sim.plants.compliant_plane import PARAMETERS
 from cr_sim.plants.registry import make_plant

@@ -4,8 +4,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cr_sim.models.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
-from cr_sim.models.planar_chain import (
+from cr_control.models.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
+from cr_control.models.planar_chain import (
     PlanarChain,
     coriolis_matrix,
     forward_dynamics,

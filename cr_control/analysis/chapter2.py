@@ -4,7 +4,7 @@ Works on a recorded session (:func:`from_session`) or an offline run (:func:`fro
 of ``moving_object_adaptive`` or ``moving_object_nn``: both publish the object position x_o,
 the contact point on the object x_co, their errors, e^1 = q_d^1 - q^1, the contact force
 lambda and its error, and tau_1..tau_3 (tau^1 of the arm, tau^2 = the prismatic axis's
-force) in their status (:mod:`cr_control.schemes.moving_object_model`); the adaptive scheme
+force) in their status (:mod:`cr_control.schemes.closed_chain.moving_object_model`); the adaptive scheme
 adds P_hat_1..7, the network scheme |M^1|, |M^_nn|, |C^1|, |C^_nn|, |G^1|, |G^_nn|.
 
 :func:`object_metrics` gives what issue 10 asks for side by side, per time window: RMS/max
@@ -71,7 +71,7 @@ def is_chapter2(status: dict[str, np.ndarray] | Sequence[str]) -> bool:
 
 
 def _true_p() -> np.ndarray:
-    from cr_control.schemes.moving_object_model import TRUE_P  # analysis -> schemes (one way)
+    from cr_control.schemes.closed_chain.moving_object_model import TRUE_P  # analysis -> schemes (one way)
 
     return np.asarray(TRUE_P, dtype=float)
 

@@ -114,8 +114,8 @@ def true_estimates(scheme: str, plant: dict[str, Any] | None,
         out = {f"{n}_hat": float(x) for n, x in zip(BACKSTEPPING_NAMES, theta, strict=True)}
         out["d_hat"] = 1.0 / float(theta[0])
         return out
-    from cr_control.schemes import diophantine
-    from cr_control.schemes.mrac_force import PARAMETERS
+    from cr_control.schemes.blocks import diophantine
+    from cr_control.schemes.force.mrac_force import PARAMETERS
 
     c = _values(PARAMETERS, controller)
     theta_f = diophantine.solve(theta, c["zeta"], c["omega"],

@@ -3,7 +3,7 @@
 Works on a recorded session (:func:`from_session`) or an offline run (:func:`from_offline`)
 of the ``impedance`` or ``fuzzy_unidirectional`` scheme: both publish the normal force
 f_m = n^T f, the gap to the surface |r - c| - R (negative = penetration) and d_m, k_m in
-their status (:mod:`cr_control.schemes.unidirectional_impedance`).
+their status (:mod:`cr_control.schemes.blocks.unidirectional_impedance`).
 
 :func:`contact_metrics` gives what issue 8 asks for side by side: time separated, minimum
 normal force, force RMS error after the disturbance, position RMS error, peak torque,

@@ -2,7 +2,7 @@
 
 Works on a recorded session (:func:`from_session`) or an offline run (:func:`from_offline`)
 of ``fjr_robust_adaptive`` (Theorem 6.2.1) or ``fjr_singular_perturbation`` (section 6.2.1).
-Both publish (:mod:`cr_control.schemes.flexible_joint_scheme`) the task-space fields, the
+Both publish (:mod:`cr_control.schemes.flexible_joint.flexible_joint_scheme`) the task-space fields, the
 motor torques tau_1, tau_2 (= tau_m1, tau_m2), ``held``, then lambda, e_lambda =
 lambda_d - lambda, e_q = q_ld - q_l and Phi(q_l); the reference carries q_ld. The robust
 scheme adds p_hat_1..10 (the two per-joint blocks p_1, p_2 of Property 6.5, five each),
@@ -225,7 +225,7 @@ def true_p(run: FlexRun) -> np.ndarray | None:
     """What p_hat estimates for the section 6.3 links (flexible_joint_model.TRUE_P = p):
     p itself (singular perturbation, K_s known), Lambda^-1 p = [p / k_s1; p / k_s2] (robust,
     Property 6.5; only where the plant's K_s is known). None otherwise."""
-    from cr_control.schemes.flexible_joint_model import TRUE_P  # analysis -> schemes (one way)
+    from cr_control.schemes.flexible_joint.flexible_joint_model import TRUE_P  # analysis -> schemes (one way)
 
     p = run.p_hat()
     if p is None:

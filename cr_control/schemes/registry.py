@@ -5,19 +5,19 @@ from __future__ import annotations
 from typing import Any
 
 from cr_control.core.parameters import resolve
-from cr_control.schemes.adaptive_impedance import AdaptiveImpedanceController
-from cr_control.schemes.backstepping_force import BacksteppingForceController
-from cr_control.schemes.cmmsd_backstepping import CMMSDBacksteppingController
+from cr_control.schemes.closed_chain.moving_object_adaptive import MovingObjectAdaptiveController
+from cr_control.schemes.closed_chain.moving_object_nn import MovingObjectNNController
 from cr_control.schemes.controller import Controller
-from cr_control.schemes.fjr_robust_adaptive import FJRRobustAdaptiveController
-from cr_control.schemes.fjr_singular_perturbation import FJRSingularPerturbationController
-from cr_control.schemes.fuzzy_unidirectional import FuzzyUnidirectionalController
-from cr_control.schemes.impedance import ImpedanceController
-from cr_control.schemes.moving_object_adaptive import MovingObjectAdaptiveController
-from cr_control.schemes.moving_object_nn import MovingObjectNNController
-from cr_control.schemes.mrac_force import MRACForceController
-from cr_control.schemes.nn_adaptive_impedance import NNAdaptiveImpedanceController
-from cr_control.schemes.robust_adaptive_impedance import RobustAdaptiveImpedanceController
+from cr_control.schemes.flexible_joint.fjr_robust_adaptive import FJRRobustAdaptiveController
+from cr_control.schemes.flexible_joint.fjr_singular_perturbation import FJRSingularPerturbationController
+from cr_control.schemes.force.backstepping_force import BacksteppingForceController
+from cr_control.schemes.force.cmmsd_backstepping import CMMSDBacksteppingController
+from cr_control.schemes.force.mrac_force import MRACForceController
+from cr_control.schemes.impedance.adaptive_impedance import AdaptiveImpedanceController
+from cr_control.schemes.impedance.fuzzy_unidirectional import FuzzyUnidirectionalController
+from cr_control.schemes.impedance.impedance import ImpedanceController
+from cr_control.schemes.impedance.nn_adaptive_impedance import NNAdaptiveImpedanceController
+from cr_control.schemes.impedance.robust_adaptive_impedance import RobustAdaptiveImpedanceController
 
 #: scheme name -> (controller class, default plant scenario)
 SCHEMES: dict[str, tuple[type[Controller], str]] = {

@@ -680,7 +680,7 @@ def aba_us_per_call(n: int = 2000, repeats: int = 5) -> float | None:
     try:
         import numpy as np
 
-        from cr_sim.models.arm_model import TwoLinkArm
+        from cr_control.models.arm_model import TwoLinkArm
     except ImportError:
         return None
     arm = TwoLinkArm()

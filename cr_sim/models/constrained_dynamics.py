@@ -18,7 +18,7 @@ Two implementations of the same equations:
   Python-level call per algorithm: ~10 Pinocchio calls per evaluation. The reference.
 
 * the compiled kernels below for the planar mechanisms of the thesis: a planar revolute
-  chain (:mod:`cr_sim.models.planar_chain`, read from the same Pinocchio model) plus
+  chain (:mod:`cr_control.models.planar_chain`, read from the same Pinocchio model) plus
   prismatic "carriers" (decoupled masses on fixed axes, e.g. manipulator 2 of ch. 2),
   the plane fixed to the last carrier (or to the world with none). One call per RK4 step,
   a few microseconds; tests check them against :class:`ConstrainedModel` to round-off.
@@ -38,7 +38,7 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
-from cr_sim.models.planar_chain import (
+from cr_control.models.planar_chain import (
     GEOMETRY_ROWS,
     HEADER,
     PER_LINK,

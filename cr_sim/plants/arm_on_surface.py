@@ -7,8 +7,8 @@ evaluated at every stage (``substeps`` RK4 steps per period where the contact is
 One compiled call per control period advances the state and evaluates the sensors at the
 new state, so the plant's share of the 1 kHz cycle stays a few microseconds.
 
-The arm comes from the URDF through Pinocchio (:mod:`cr_sim.models.arm_model`) and is packed
-into a :class:`~cr_sim.models.planar_chain.PlanarChain` for the compiled dynamics.
+The arm comes from the URDF through Pinocchio (:mod:`cr_control.models.arm_model`) and is packed
+into a :class:`~cr_control.models.planar_chain.PlanarChain` for the compiled dynamics.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.parameters import Param, ParameterError
-from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
-from cr_sim.models.planar_chain import (
+from cr_control.models.arm_model import LinkParameters, TwoLinkArm
+from cr_control.models.planar_chain import (
     GEOMETRY_ROWS,
     PlanarChain,
     forward_dynamics_geo,

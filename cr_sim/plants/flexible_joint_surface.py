@@ -66,7 +66,7 @@ import pinocchio as pin
 from numba import njit
 
 from cr_control.core.parameters import Param, ParameterError
-from cr_sim.models.arm_model import TOOL_FRAME, LinkParameters, build_model
+from cr_control.models.arm_model import TOOL_FRAME, LinkParameters, build_model
 from cr_sim.models.constrained_dynamics import (
     mechanism_dynamics_into,
     mechanism_work_size,

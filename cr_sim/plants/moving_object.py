@@ -46,7 +46,7 @@ import pinocchio as pin
 
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.core.paths import config_file
-from cr_sim.models.arm_model import LinkParameters, build_model, two_link_inverse_kinematics
+from cr_control.models.arm_model import LinkParameters, build_model, two_link_inverse_kinematics
 from cr_sim.models.constrained_dynamics import (
     mechanism_dynamics_into,
     mechanism_rk4,

@@ -14,7 +14,7 @@ Desired motion (section 6.3): r_d(t) = c + a cos(w t + phi) per axis (x_d = -0.1
 y_d = 0.35 - 0.1 cos 2t), on the surface x - y + 0.35 = 0 (DESIGN.md: not the printed
 0.25), through the inverse kinematics on the branch sin(theta2) < 0 (DESIGN.md), with its
 time derivatives up to order 4 taken exactly (Taylor jets,
-:func:`cr_control.schemes.flexible_joint_model.desired_motion_jets`), never by finite
+:func:`cr_control.schemes.flexible_joint.flexible_joint_model.desired_motion_jets`), never by finite
 differences. lambda_d = 2 N.
 
 Published: the task-space reference and status of every scheme (topics.REFERENCE_FIELDS,
@@ -35,7 +35,7 @@ from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 from cr_control.schemes.controller import COMMON_PARAMETERS, Controller
-from cr_control.schemes.flexible_joint_model import constraint_into, desired_motion_jets
+from cr_control.schemes.flexible_joint.flexible_joint_model import constraint_into, desired_motion_jets
 
 MOTOR_JOINTS = ["joint1_motor", "joint2_motor"]
 STATE_JOINTS = ["joint1", "joint2", *MOTOR_JOINTS]

@@ -4,7 +4,7 @@
 
 with the constant impedance m_m = 1.2, d_m = 12, k_m = 60 of section 5.3, f_d = f_dm n
 along the outward normal of the circular surface and the desired motion (5.21-5.22): see
-:mod:`cr_control.schemes.unidirectional_impedance` for the sign convention and n. The status
+:mod:`cr_control.schemes.blocks.unidirectional_impedance` for the sign convention and n. The status
 also reports s = n^T e_r' + (k_m/d_m) n^T e_r, the quantity the fuzzy scheme tunes on.
 One compiled call per cycle (:func:`impedance_cycle`).
 """
@@ -15,7 +15,7 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
-from cr_control.schemes.unidirectional_impedance import (
+from cr_control.schemes.blocks.unidirectional_impedance import (
     CONTACT_PARAMETERS,
     REFERENCE_PARAMETERS,
     SCHEME_GAINS_AT,

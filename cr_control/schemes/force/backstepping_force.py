@@ -3,7 +3,7 @@
 4.55) on the dynamic constraint of chapter 4 (n = 5, rho = 2): the command displacement
 delta_c drives the constraint force f to f_d, only f is used.
 
-The design is the generic one of :mod:`cr_control.schemes.backstepping` (Sizes(5, 2)) with
+The design is the generic one of :mod:`cr_control.schemes.blocks.backstepping` (Sizes(5, 2)) with
 c = [h_1, h_2] and no nonlinear damping; it keeps the d alpha_1/d v terms that the printed
 (4.47) leaves out (see there). Defaults are section 4.3's: h_1 = h_2 = 2, gamma = 0.01,
 Gamma = diag(45, 60, 60, 60, 45, 45, 45, 45, 10), lambda = [12 5 15 2 4], initial estimates
@@ -23,9 +23,9 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.parameters import Param
-from cr_control.schemes import backstepping as bs
+from cr_control.schemes.blocks import backstepping as bs
+from cr_control.schemes.blocks.task_space import split_output
 from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
-from cr_control.schemes.task_space import split_output
 
 SIZES = bs.Sizes(5, 2)
 N, P = SIZES.n, SIZES.p

@@ -3,8 +3,8 @@
     tau = J^T [M_r (r_d'' + A_hat e' + B_hat e - c_hat) + C_r r' + G_r - f]   (3.32)
 
 with A_hat, B_hat, c_hat from the reference model (3.8) and the laws (3.11-3.14) in
-:mod:`cr_control.schemes.impedance_adaptation`, e = r_d - r, and the task-space model
-(3.2) evaluated in joint space (:func:`~cr_control.schemes.task_space.torque_for_acceleration`).
+:mod:`cr_control.schemes.blocks.impedance_adaptation`, e = r_d - r, and the task-space model
+(3.2) evaluated in joint space (:func:`~cr_control.schemes.blocks.task_space.torque_for_acceleration`).
 One compiled call per cycle (:func:`adaptive_impedance_cycle`).
 """
 
@@ -14,23 +14,23 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.schemes import impedance_adaptation as impedance
-from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
-from cr_control.schemes.impedance_adaptation import (
+from cr_control.schemes.blocks import impedance_adaptation as impedance
+from cr_control.schemes.blocks.impedance_adaptation import (
     ESTIMATE_FIELDS,
     ImpedanceAdaptation,
     impedance_acceleration,
     impedance_parameters,
     impedance_update,
 )
-from cr_control.schemes.references import REFERENCE, packed_reference
-from cr_control.schemes.task_space import (
+from cr_control.schemes.blocks.references import REFERENCE, packed_reference
+from cr_control.schemes.blocks.task_space import (
     TASK_SPACE_PARAMETERS,
     ArmTaskSpace,
     task_state,
     torque_for_acceleration,
     write_task_space,
 )
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
 
 #: The scheme's packed gains: the reference block, then the impedance adaptation's.
 _R = REFERENCE.size

@@ -15,7 +15,7 @@ come from the same states without differentiating anything:
 Defaults (section 4.3): zeta = 0.7, omega = 0.5, P_o = p^4 + 19p^3 + 65p^2 + 77p + 30,
 gamma_f = 0.8, initial estimates 0.65 x the true theta_f and 0.65 x b_3 of case 1. The
 printed true theta_f is wrong in r_2..r_0 and the s_i (DESIGN.md): the defaults use the
-solution of (4.65) at the true case-1 theta (:mod:`cr_control.schemes.diophantine`).
+solution of (4.65) at the true case-1 theta (:mod:`cr_control.schemes.blocks.diophantine`).
 The filters start at rest (zero) unless ``bumpless_start`` (steady state for the first
 measured f, f_d and delta_c = delta(0)); the reference model starts at the first measured f.
 """
@@ -26,10 +26,10 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.parameters import Param
-from cr_control.schemes import diophantine
-from cr_control.schemes.backstepping_force import _JOINTS, TRUE_THETA
+from cr_control.schemes.blocks import diophantine
+from cr_control.schemes.blocks.task_space import split_output
 from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
-from cr_control.schemes.task_space import split_output
+from cr_control.schemes.force.backstepping_force import _JOINTS, TRUE_THETA
 
 #: True theta_f (4.69) of case 1 for the section 4.3 design (the corrected solution).
 TRUE_THETA_F_CASE1 = diophantine.solve(TRUE_THETA[1], 0.7, 0.5, [1.0, 19.0, 65.0, 77.0, 30.0])["theta_f"]

@@ -13,9 +13,8 @@ from numba import njit
 
 from cr_control.core.linalg import inv2, matmul, matvec, tmatvec
 from cr_control.core.parameters import Param
-from cr_control.schemes.references import CHAPTER3_REFERENCE, chapter3_reference
-from cr_sim.models.arm_model import LinkParameters, TwoLinkArm
-from cr_sim.models.planar_chain import (
+from cr_control.models.arm_model import LinkParameters, TwoLinkArm
+from cr_control.models.planar_chain import (
     PlanarChain,
     coriolis_matrix,
     mass_matrix,
@@ -23,6 +22,7 @@ from cr_sim.models.planar_chain import (
     tool_jacobian_dot,
     tool_kinematics,
 )
+from cr_control.schemes.blocks.references import CHAPTER3_REFERENCE, chapter3_reference
 
 #: The controller's model of the arm (thesis values; the robust schemes use wrong ones).
 ARM_MODEL_PARAMETERS = [

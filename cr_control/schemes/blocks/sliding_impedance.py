@@ -50,15 +50,15 @@ from numba import njit
 from cr_control.core.linalg import inv2, matmul, matvec, tmatvec
 from cr_control.core.packing import Layout, block, block2
 from cr_control.core.parameters import Param, matrix
-from cr_control.schemes import impedance_adaptation as impedance
-from cr_control.schemes.controller import Controller, KernelOutput
-from cr_control.schemes.impedance_adaptation import ImpedanceAdaptation, impedance_update
-from cr_control.schemes.references import REFERENCE, packed_reference
-from cr_control.schemes.task_space import (
+from cr_control.schemes.blocks import impedance_adaptation as impedance
+from cr_control.schemes.blocks.impedance_adaptation import ImpedanceAdaptation, impedance_update
+from cr_control.schemes.blocks.references import REFERENCE, packed_reference
+from cr_control.schemes.blocks.task_space import (
     ArmTaskSpace,
     task_state,
     write_task_space,
 )
+from cr_control.schemes.controller import Controller, KernelOutput
 
 #: Status fields of the sliding-mode part, before the scheme's own and ESTIMATE_FIELDS.
 SLIDING_STATUS_FIELDS = ["s_x", "s_y", "z_x", "z_y", "d"]

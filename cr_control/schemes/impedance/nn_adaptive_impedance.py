@@ -11,7 +11,7 @@ Every element of the task-space dynamics (3.2) is approximated by a Gaussian RBF
     theta_Gk'  = Gamma_G xi(q) s_k                                                   (3.81)
 
 Compensator, s, r_eq, boundary layer and impedance adaptation (3.82-3.85): as in
-:mod:`cr_control.schemes.sliding_impedance`. All elements share one activation vector per input
+:mod:`cr_control.schemes.blocks.sliding_impedance`. All elements share one activation vector per input
 (the centres are the same), so the networks are weight matrices (nodes x elements),
 evaluated and updated with one matrix product each. Initial weights are zero. The weights
 are integrated with the dt of each cycle (the update uses this cycle's s, then the
@@ -48,10 +48,10 @@ from numba import njit
 from cr_control.core.linalg import matvec, spectral_norm_2x2
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError
-from cr_control.schemes import rbf_network
-from cr_control.schemes.controller import ControlOutput
-from cr_control.schemes.impedance_adaptation import ESTIMATE_FIELDS, impedance_parameters
-from cr_control.schemes.sliding_impedance import (
+from cr_control.models.planar_chain import kinematics_only
+from cr_control.schemes.blocks import rbf_network
+from cr_control.schemes.blocks.impedance_adaptation import ESTIMATE_FIELDS, impedance_parameters
+from cr_control.schemes.blocks.sliding_impedance import (
     SCHEME_GAINS_AT,
     SCHEME_STATE_AT,
     SLIDING_STATUS_FIELDS,
@@ -60,8 +60,8 @@ from cr_control.schemes.sliding_impedance import (
     sliding_front,
     sliding_parameters,
 )
-from cr_control.schemes.task_space import TASK_SPACE_PARAMETERS, ArmTaskSpace, inverse_2x2
-from cr_sim.models.planar_chain import kinematics_only
+from cr_control.schemes.blocks.task_space import TASK_SPACE_PARAMETERS, ArmTaskSpace, inverse_2x2
+from cr_control.schemes.controller import ControlOutput
 
 NN_STATUS_FIELDS = ["M_r_norm", "M_r_hat_norm", "C_r_norm", "C_r_hat_norm", "G_r_norm",
                     "G_r_hat_norm"]

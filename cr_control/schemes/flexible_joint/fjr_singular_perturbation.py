@@ -43,7 +43,7 @@ with the filter w(s) = alpha / (s + alpha) (6.96): z = w * (K_s theta + J_Phi^T 
 J_Phi(q_l)^T lambda - Z), Z(0) = 0; the filtered regressor W = w * Psi(q_l'', q_l', q_l',
 q_l) (6.99) without q_l'': W = alpha Psi_M(q_l, q_l') + F_w, F_w' = alpha (-alpha Psi_M +
 Psi_N - F_w), F_w(0) = -alpha Psi_M(q_l(0), q_l'(0)) (zero from rest; derivation in
-:mod:`cr_control.schemes.flexible_joint_model`), so W(0) = 0 and z = W p exactly in
+:mod:`cr_control.schemes.flexible_joint.flexible_joint_model`), so W(0) = 0 and z = W p exactly in
 continuous time (6.100); z_hat = W p_hat (6.101), z~ = Z - z_hat. ||Gamma^-1|| is the
 spectral norm of the s.p.d. Gamma^-1, 1 / lambda_min(Gamma).
 
@@ -115,9 +115,9 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
-from cr_control.schemes import flexible_joint_scheme as fjs
 from cr_control.schemes.controller import ControlOutput, KernelOutput
-from cr_control.schemes.flexible_joint_model import (
+from cr_control.schemes.flexible_joint import flexible_joint_scheme as fjs
+from cr_control.schemes.flexible_joint.flexible_joint_model import (
     P_HAT_0,
     filtered_regressor_input_into,
     force_jets_into,

@@ -1,7 +1,7 @@
 """Fuzzy unidirectional force control (thesis section 5.2: 5.7 with 5.18-5.20; figs. 5.6-5.9).
 
 The impedance controller (5.7) with k_m = lambda d_m and d_m tuned every cycle by fuzzy rule
-set 2 (:mod:`cr_control.schemes.fuzzy`):
+set 2 (:mod:`cr_control.schemes.blocks.fuzzy`):
 
     s    = n^T e_r' + lambda n^T e_r                                           (5.18)
     e_fm = f_dm - f_m,  e_fmin = f_dm - f_max,  e_fmax = f_dm - f_min           (5.11-5.12)
@@ -22,8 +22,8 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
-from cr_control.schemes.fuzzy import rule_set_2_damping
-from cr_control.schemes.unidirectional_impedance import (
+from cr_control.schemes.blocks.fuzzy import rule_set_2_damping
+from cr_control.schemes.blocks.unidirectional_impedance import (
     CONTACT_PARAMETERS,
     F_DM_AT,
     REFERENCE_PARAMETERS,

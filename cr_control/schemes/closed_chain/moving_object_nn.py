@@ -12,7 +12,7 @@ dynamics model; every element of M^1 (3x2), C^1 (3x2) and G^1 (3) of the reduced
 
 The GL-matrix products of (2.68-2.73) are element-wise inner products; since all elements
 of a network family share their centres, each family is one weight matrix (nodes x
-elements) and one activation vector (:mod:`cr_control.schemes.rbf_network`). sgn(r^1) is
+elements) and one activation vector (:mod:`cr_control.schemes.blocks.rbf_network`). sgn(r^1) is
 replaced by a boundary layer sat(r^1/Delta) (remark 2.3.6), Delta = 0.01 (2.4).
 
 Section 2.4 values: 120 nodes per network, sigma^2 = 40, Gamma = 0.1, Q = 0.2, U = 5.0,
@@ -39,8 +39,8 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError
-from cr_control.schemes import moving_object_model as mo
-from cr_control.schemes import rbf_network
+from cr_control.schemes.blocks import rbf_network
+from cr_control.schemes.closed_chain import moving_object_model as mo
 from cr_control.schemes.controller import ControlOutput, KernelOutput
 
 NORM_FIELDS = ["M1_norm", "M1_hat_norm", "C1_norm", "C1_hat_norm", "G1_norm", "G1_hat_norm"]

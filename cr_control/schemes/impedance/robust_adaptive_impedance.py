@@ -7,7 +7,7 @@ M_r^, C_r^, G_r^ are the task-space dynamics (3.2) of the controller's model of 
 which is deliberately wrong (section 3.5.2): link inertias 0.2 kg m^2 and masses 0.05 kg
 instead of 0.3 and 0.1. Compensator z (3.40, 3.43-3.45), s (3.41), r_eq (3.49-3.50), the
 boundary layer (remark 3.3.1) and the D sign convention are in
-:mod:`cr_control.schemes.sliding_impedance`; the impedance estimates follow 3.61-3.65 with
+:mod:`cr_control.schemes.blocks.sliding_impedance`; the impedance estimates follow 3.61-3.65 with
 e'^T in the A_hat law (3.48 prints e^T; DESIGN.md) through :class:`ImpedanceAdaptation`.
 
 The printed bounds dM = 0.1, dC = 0.1 (3.36-3.37) do not bound the real model errors of
@@ -25,9 +25,8 @@ from numba import njit
 from cr_control.core.linalg import matvec
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
-from cr_control.schemes.controller import ControlOutput
-from cr_control.schemes.impedance_adaptation import ESTIMATE_FIELDS, impedance_parameters
-from cr_control.schemes.sliding_impedance import (
+from cr_control.schemes.blocks.impedance_adaptation import ESTIMATE_FIELDS, impedance_parameters
+from cr_control.schemes.blocks.sliding_impedance import (
     SCHEME_GAINS_AT,
     SLIDING_STATUS_FIELDS,
     SlidingImpedanceController,
@@ -35,7 +34,8 @@ from cr_control.schemes.sliding_impedance import (
     sliding_front,
     sliding_parameters,
 )
-from cr_control.schemes.task_space import TASK_SPACE_PARAMETERS, task_dynamics
+from cr_control.schemes.blocks.task_space import TASK_SPACE_PARAMETERS, task_dynamics
+from cr_control.schemes.controller import ControlOutput
 
 #: The controller's (wrong) estimate of the links' inertial parameters (section 3.5.2).
 _WRONG_MODEL = {

@@ -6,9 +6,9 @@ Controller (5.7), shared by the fixed-impedance and the fuzzy scheme:
 
 with e_r = r_d - r. Substituted into (5.4) it gives the impedance (5.6)
 f_d - f = m_m e_r'' + d_m e_r' + k_m e_r. The task-space model M_r, C_r, G_r (5.4) is the
-chapter 3 one (:mod:`cr_control.schemes.task_space`), evaluated in joint space as
+chapter 3 one (:mod:`cr_control.schemes.blocks.task_space`), evaluated in joint space as
 J^T (M_r a + C_r r' + G_r - f) = M J^-1 (a - J' q') + C q' + G - J^T f
-(:func:`~cr_control.schemes.task_space.torque_for_acceleration`, one Newton-Euler pass).
+(:func:`~cr_control.schemes.blocks.task_space.torque_for_acceleration`, one Newton-Euler pass).
 
 Sign convention of the force. f in (5.1), (5.4) and (5.7) is the force of the environment
 ON the robot (tau + J^T f), which is what this package's plants and force sensor report.
@@ -26,7 +26,7 @@ force along that normal: = |f| while f is a contact force along n, and it goes n
 if anything pulls, which is the "force along the normal" of figs. 5.4 and 5.7.
 
 The desired motion (5.21-5.22) x_d = 0.8 - 0.3 sin t, y_d = -0.4 + 0.3 cos t is a
-:func:`~cr_control.schemes.references.cosine_reference` r_d = offset - amplitude cos(w t +
+:func:`~cr_control.schemes.blocks.references.cosine_reference` r_d = offset - amplitude cos(w t +
 phase) with offset (0.8, -0.4), amplitude (0.3, -0.3), phase (-pi/2, 0), w = 1 rad/s.
 """
 
@@ -40,15 +40,15 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
-from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
-from cr_control.schemes.references import CHAPTER3_REFERENCE, cosine_reference
-from cr_control.schemes.task_space import (
+from cr_control.schemes.blocks.references import CHAPTER3_REFERENCE, cosine_reference
+from cr_control.schemes.blocks.task_space import (
     ARM_MODEL_PARAMETERS,
     ArmTaskSpace,
     task_state,
     torque_for_acceleration,
     write_task_space,
 )
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
 
 _CH5_DEFAULTS = {
     "model_link_length": ([0.6, 0.6], "Controller model: link lengths (m) (section 5.3: 0.6)."),

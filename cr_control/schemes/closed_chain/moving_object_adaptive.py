@@ -7,7 +7,7 @@
 with Psi_r = Psi(q^1, q^1', q_r^1', q_r^1''), e^1 = q_d^1 - q^1, r^1 = e^1' + K_e e^1,
 q_r^1' = q_d^1' + K_e e^1 (2.22-2.26), e_lambda = lambda_d - lambda, lambda = n_c . f (the
 wrench carries n_c lambda). Regressor with the Psi_11 correction and "L^-T" the right
-inverse L (L^T L)^-1 of L^T (DESIGN.md): :mod:`cr_control.schemes.moving_object_model`.
+inverse L (L^T L)^-1 of L^T (DESIGN.md): :mod:`cr_control.schemes.closed_chain.moving_object_model`.
 (2.35) is printed as P~' = ...; the proof (2.39) needs P_hat' = -P~' = Gamma Psi_r^T L r^1.
 
 Section 2.4 gains: K_e = 20 I, K = 15 I, k_lambda = 15, Gamma = 15 I_7,
@@ -23,7 +23,7 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
-from cr_control.schemes import moving_object_model as mo
+from cr_control.schemes.closed_chain import moving_object_model as mo
 from cr_control.schemes.controller import ControlOutput, KernelOutput
 
 ESTIMATE_FIELDS = [f"P_hat_{i + 1}" for i in range(7)]

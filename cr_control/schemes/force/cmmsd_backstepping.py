@@ -4,7 +4,7 @@ mass, measuring q_1 only, for any N.
 
 The plant q_1/u is of order n = 2N and relative degree rho = 2N (no zeros), theta =
 [d_2N, a_{2N,2N-1} .. a_{2N,0}] (C.5-C.6). The design is the generic one of
-:mod:`cr_control.schemes.backstepping` (Sizes(2N, 2N)) with c_1 = zeta + 1/2, c_i = zeta and
+:mod:`cr_control.schemes.blocks.backstepping` (Sizes(2N, 2N)) with c_1 = zeta + 1/2, c_i = zeta and
 nonlinear damping d_i = 1/4 for 2 <= i < 2N and d_2N = 0 as printed in (C.39), (C.47), (C.50).
 
 Only q_1 is read: :meth:`CMMSDBacksteppingController.compute` passes q[0] to the kernel and
@@ -25,9 +25,9 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.parameters import Param, ParameterError
-from cr_control.schemes import backstepping as bs
+from cr_control.schemes.blocks import backstepping as bs
+from cr_control.schemes.blocks.task_space import split_output
 from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
-from cr_control.schemes.task_space import split_output
 
 _JOINTS = Param("joint_names", ["q1", "q2"], "The chain's joints q1..qN in order (N = their "
                 "number); only q1 is read, the force goes to the last.", "string_list",

@@ -5,7 +5,8 @@ joint stiffness K_s, motor inertia J_m and link parameters (thesis section 6.2, 
 Plant (6.1-6.3): M(q_l) q_l'' + C q_l' + G = K_s theta + J_Phi^T lambda,
 J_m q_m'' + K_s theta = tau_m, theta = q_m - q_l; n = 2 joints, m = 1 constraint, the
 partition q_l^1 = theta1, q_l^2 = theta2 (section 6.3), so e^1, r^1, q_r^1 are scalars and
-L = [1, L2] (6.8, corrected 6.118: :func:`cr_control.schemes.flexible_joint_model.constraint_into`).
+L = [1, L2] (6.8, corrected 6.118:
+:func:`~cr_control.schemes.flexible_joint.flexible_joint_model.constraint_into`).
 
 Step 1, the desired transmission deflection theta_d (6.13-6.42):
 
@@ -99,9 +100,9 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, matrix
-from cr_control.schemes import flexible_joint_scheme as fjs
 from cr_control.schemes.controller import ControlOutput, KernelOutput
-from cr_control.schemes.flexible_joint_model import P_HAT_0, expanded_regressor_into
+from cr_control.schemes.flexible_joint import flexible_joint_scheme as fjs
+from cr_control.schemes.flexible_joint.flexible_joint_model import P_HAT_0, expanded_regressor_into
 
 N_P = 10
 MOTOR_ACCELERATION = ("measured", "filtered")

@@ -61,7 +61,7 @@ x_d = -0.1 cos 2t, y_d = 0.35 - 0.1 cos 2t, through the inverse kinematics on th
 sign(sin theta2) = elbow_sign (-1 in ch. 6):
     c2 = (|r|^2 - l1^2 - l2^2) / (2 l1 l2),  theta2 = elbow_sign acos(c2),
     theta1 = atan2(y, x) - atan2(l2 s2, l1 + l2 c2),
-all evaluated in jets (cr_control.schemes.jets), so q_ld', q_ld'' ... are exact: they equal
+all evaluated in jets (cr_control.schemes.blocks.jets), so q_ld', q_ld'' ... are exact: they equal
 J_kin^-1 r_d' and J_kin^-1 (r_d'' - J_kin' q_ld') (DESIGN.md; the printed
 "q_ld' = J(q_ld) r_d'" misses the inverse). Derivative arrays ("qjet") are laid out
 row k = k-th time derivative, column = joint: shape (K+1, 2), K = 4 for the schemes.
@@ -75,7 +75,7 @@ import numpy as np
 from numba import njit, types
 from numba.extending import overload
 
-from cr_control.schemes.jets import (
+from cr_control.schemes.blocks.jets import (
     jet_acos,
     jet_add,
     jet_atan2,

@@ -1,0 +1,1 @@
+"""Robot models the controllers use (no ROS): URDF through Pinocchio, compiled chains."""

@@ -1,0 +1,1 @@
+"""Force control through a dynamic constraint (chapter 4) and mass-chain position control (appendix C)."""
