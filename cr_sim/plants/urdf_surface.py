@@ -1,0 +1,574 @@
+"""Any URDF arm pressing a compliant surface with its tip: the generic contact plant.
+
+What it simulates
+-----------------
+The serial chain ``base_link`` -> ``tip_link`` of a URDF (:func:`cr_control.models.urdf.load_chain`:
+every other joint locked where the URDF's neutral position, clipped into its limits, puts
+it; what it carries rides on the chain as rigid mass), torque-commanded, whose tip point
+touches a compliant environment (:mod:`cr_sim.models.contact3d`). Frames: everything is
+in the base frame (``base_link``): gravity, the surface, the contact force (``wrench_frame``).
+
+Equations (state x = [q, q'], n chain joints)
+----------------------------------------------
+    M(q) q'' + C(q, q') q' + G(q) = tau + J_v(q)^T f - D q' - F tanh(q'/eps_q)
+
+- tau the held command, J_v the linear rows of the tip Jacobian in the base frame
+  (Pinocchio ``LOCAL_WORLD_ALIGNED``), f the contact force on the tip (base frame);
+- D = diag(URDF ``<dynamics damping>``) viscous joint damping, F = diag(``<dynamics
+  friction>``) Coulomb joint friction regularised over eps_q = :data:`JOINT_FRICTION_EPSILON`;
+- q'' from Pinocchio's articulated-body algorithm (``pin.aba``) with that total torque.
+
+Contact law (unilateral, at the tip point r, outward unit normal n, depth delta):
+
+    f_n = max(K_e delta - D_e n.r', 0)  if delta > 0         (never pulls)
+    f_t = -mu f_n v_t / sqrt(|v_t|^2 + eps^2) - c_v v_t      (only while f_n > 0)
+    f   = f_n n + f_t
+
+- plane: delta = -n.(r - p); the environment is the side n.(r - p) < 0; default p = the
+  tip's initial position (the robot starts touching at zero force), n = +z (a table);
+- sphere: delta = R - |r - c|, n = (r - c)/|r - c|, the environment inside the ball;
+  default c = r_0 - R n_param (touching the tip at its initial position from below);
+- none: free motion.
+
+Defaults: K_e = 5000 N/m (a compliant pad on a table: 2 mm at 10 N), D_e = 20 N s/m (a
+lightly damped pad: 0.07 of critical for the Panda at home, whose tip weighs m_n = 4 kg
+along z, so the controller has to damp the contact; the pad alone rings at
+sqrt(K_e/m_n) = 35 rad/s, 5.6 Hz), no friction (the pure normal-force problem of the
+thesis; set ``friction_coulomb``/``friction_viscous`` for sliding).
+
+Integration
+-----------
+Classical RK4 with the command held over the period and the contact force evaluated at
+every stage, ``substeps`` steps per period. ``substeps = 0`` chooses them once, from the
+initial pose q_0, so that h omega_c <= 0.5 (RK4's stability limit on the real axis is 2.79,
+on the imaginary axis 2.83):
+
+    omega_c = max( sqrt((K_e + D_e^2/m_n)/m_n),      contact spring-damper along n
+                   c_v / m_min,                       tangential viscous friction
+                   lambda_max(M^-1 diag(D + F/eps_q)) )   joint damping and friction
+    substeps = max(1, ceil(dt omega_c / 0.5))
+
+with m_n = 1/(n^T J_v M^-1 J_v^T n) the apparent mass of the tip along the surface normal
+and m_min the smallest apparent mass over all directions, at q_0. sqrt((K + D^2/m)/m)
+bounds the magnitude of both roots of m s^2 + D s + K. Not counted: the regularised
+Coulomb friction's slope mu f_n/eps (it depends on the force: set ``substeps`` by hand
+for stiff sliding) and changes of the apparent mass away from q_0.
+
+Joints
+------
+``joint_names`` = the chain's joints, then every other joint of the URDF with one
+coordinate (the Panda's fingers), reported at their locked position with zero velocity
+and effort; ``command_joint_names`` = the chain's joints: controllers pick their joints by
+name. Measurement noise (if asked) is added to the chain's joints and to the force only.
+
+Cost
+----
+One period is, per RK4 stage, two Pinocchio calls (``computeFrameJacobian``, ``aba``) and
+two compiled glue kernels working in preallocated buffers; the tip position is read
+through a live view of ``data.oMf[tip]`` (no copy). The contact force and depth for the
+sensors are evaluated lazily, when asked, at the state the step ended in. Measured for the
+Panda (1 ms step, pressing 10 N; an empty Python ``for`` iteration took 14-15 ns in the
+same run): 17 us with 1 substep, 34 us with 2, 65 us with 4; ``measurement()`` adds 6 us.
+Of each ~4 us stage, Pinocchio takes ~3.2 us (aba 2.4, the Jacobian 0.8), the glue ~0.8.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+from numba import njit
+
+from cr_control.core.parameters import Param, ParameterError
+from cr_control.models.urdf import (
+    CONTINUOUS,
+    ChainModel,
+    RobotModelError,
+    _locked_configuration,
+    load_chain,
+    parse_urdf,
+    urdf_text,
+)
+from cr_sim.models import contact3d
+from cr_sim.models.contact3d import contact_into
+from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS
+from cr_sim.plants.base import (
+    JointLimits,
+    Measurement,
+    Plant,
+    max_contact_force_parameter,
+    take_command,
+)
+
+NAME = "urdf_surface"
+
+#: eps_q (rad/s, m/s): joint Coulomb friction F tanh(q'/eps_q) reaches 76 % of F at q' = eps_q.
+JOINT_FRICTION_EPSILON = 0.01
+#: Automatic substeps keep h omega_c at or below this.
+STEP_RATE_LIMIT = 0.5
+#: Surfaces by name.
+SURFACES = {"none": contact3d.NONE, "plane": contact3d.PLANE, "sphere": contact3d.SPHERE}
+
+PARAMETERS = [
+    Param("robot_description", "", "The robot's URDF (XML); empty: read urdf_file.", "string",
+          read_only=True),
+    Param("urdf_file", "", "URDF file if robot_description is empty: a path, a file of this "
+          "package's config directory or package://PKG/path.", "string", read_only=True),
+    Param("base_link", "base_link", "First link of the simulated chain; its frame is the base "
+          "frame of gravity, the surface and the contact force.", "string", read_only=True),
+    Param("tip_link", "tool0", "Last link of the chain: its origin is the contact point.",
+          "string", read_only=True),
+    Param("gravity", [0.0, 0.0, -9.81], "Gravitational acceleration in the base frame (m/s^2).",
+          "vector", 3, read_only=True),
+    Param("initial_joint_positions", [], "Chain joint positions at t = 0, at rest (rad or m); "
+          "empty: Pinocchio's neutral clipped into the joint limits.", "vector", read_only=True),
+    Param("surface", "plane", "Environment: a plane, a sphere (pressed from outside) or none.",
+          "choice", read_only=True, choices=tuple(SURFACES)),
+    Param("surface_point", [], "A point of the plane, base frame (m); empty: the tip's initial "
+          "position (touching at zero force).", "vector", read_only=True),
+    Param("surface_normal", [0.0, 0.0, 1.0], "Outward normal of the plane (normalised; the "
+          "environment is on the side n.(r - point) < 0); sphere with surface_centre empty: "
+          "direction from the centre to the tip's initial position.", "vector", 3,
+          read_only=True),
+    Param("surface_centre", [], "Centre of the sphere, base frame (m); empty: the tip's initial "
+          "position - surface_radius * surface_normal (touching at zero force).", "vector",
+          read_only=True),
+    Param("surface_radius", 0.1, "Radius of the sphere (m).", "positive", read_only=True),
+    Param("stiffness", 5000.0, "Contact stiffness K_e along the normal (N/m): a compliant pad, "
+          "2 mm at 10 N.", "positive", read_only=True),
+    Param("damping", 20.0, "Contact damping D_e along the normal (N s/m); the normal force "
+          "max(K_e depth - D_e n.r', 0) never pulls.", "nonnegative", read_only=True),
+    Param("friction_coulomb", 0.0, "Tangential Coulomb friction coefficient mu (regularised).",
+          "nonnegative", read_only=True),
+    Param("friction_viscous", 0.0, "Tangential viscous friction c_v while in contact (N s/m).",
+          "nonnegative", read_only=True),
+    Param("friction_velocity_epsilon", 1e-3, "Regularisation eps of the Coulomb friction: "
+          "mu f_n v_t/sqrt(|v_t|^2 + eps^2) (m/s).", "positive", read_only=True),
+    *NOISE_PARAMETERS,
+    max_contact_force_parameter(50.0, "5 x the wiping task's 10 N (cr_session --robot)."),
+    Param("substeps", 0, "RK4 substeps per period; 0 = automatic: h omega_c <= 0.5 at the "
+          "initial pose (see the module docstring).", "integer", read_only=True),
+]
+
+
+# -- compiled glue: one call before and one after each Pinocchio forward dynamics ------------
+# Everything the glue reads or writes lives in one float64 work array, so each call unboxes
+# two or three arguments (numba's dispatch costs ~60 ns per array argument and more per
+# Python scalar); Pinocchio gets views of it. Layout, n chain joints, nq Pinocchio coordinates:
+#   [n, nq, h, stage | x (2n) | xs (2n) | k (4 x 2n) | tau (n) | total (n) | contact (7) |
+#    joint (2n + 1) | qmap (2n) | surface (13) | qp (nq)]
+# x the state, xs the stage state, k the RK4 derivatives, tau the held command, total the
+# stage's joint torque, contact = [f (3), depth, r' (3)], joint = [D (n), F (n), eps_q],
+# qmap = [idx_q (n), continuous flag (n)], qp Pinocchio's q of the stage.
+HEADER = 4
+CONTACT_SIZE = 7
+
+
+@njit(cache=True)
+def layout(n, nq):
+    """Offsets (x, xs, k, tau, total, contact, joint, qmap, surface, qp, end) in the work array."""
+    x = HEADER
+    xs = x + 2 * n
+    k = xs + 2 * n
+    tau = k + 8 * n
+    total = tau + n
+    contact = total + n
+    joint = contact + CONTACT_SIZE
+    qmap = joint + 2 * n + 1
+    surface = qmap + 2 * n
+    qp = surface + contact3d.SURFACE_SIZE
+    return x, xs, k, tau, total, contact, joint, qmap, surface, qp, qp + nq
+
+
+@njit(cache=True, error_model="numpy")
+def _configuration(work):
+    """Pinocchio's q from the stage positions xs[:n]: a continuous joint takes (cos, sin)."""
+    n, nq = int(work[0]), int(work[1])
+    _, xs, _, _, _, _, _, qmap, _, qp, _ = layout(n, nq)
+    for j in range(n):
+        i = qp + int(work[qmap + j])
+        if work[qmap + n + j] != 0.0:
+            work[i] = math.cos(work[xs + j])
+            work[i + 1] = math.sin(work[xs + j])
+        else:
+            work[i] = work[xs + j]
+
+
+@njit(cache=True, error_model="numpy")
+def _begin(work, h):
+    """Start a period: step size h, first stage, xs = x and Pinocchio's q from it."""
+    n, nq = int(work[0]), int(work[1])
+    x, xs, _, _, _, _, _, _, _, _, _ = layout(n, nq)
+    work[2], work[3] = h, 0.0
+    for j in range(2 * n):
+        work[xs + j] = work[x + j]
+    _configuration(work)
+
+
+@njit(cache=True, error_model="numpy")
+def _joint_torque(J, r, work):
+    """total = tau - D q' - F tanh(q'/eps_q) + J_v^T f at the stage state xs = [q, q'].
+
+    J: the tip Jacobian (6 x n, linear rows first, base-frame axes), r: the tip position;
+    writes contact = [f (3), depth, r' = J_v q' (3)]."""
+    n, nq = int(work[0]), int(work[1])
+    _, xs, _, tau, total, c, joint, _, surface, _, _ = layout(n, nq)
+    for i in range(3):
+        s = 0.0
+        for j in range(n):
+            s += J[i, j] * work[xs + n + j]
+        work[c + 4 + i] = s
+    work[c + 3] = contact_into(work[surface:surface + contact3d.SURFACE_SIZE], r,
+                               work[c + 4:c + 7], work[c:c + 3])
+    fx, fy, fz = work[c], work[c + 1], work[c + 2]
+    eps = work[joint + 2 * n]
+    for j in range(n):
+        w = work[xs + n + j]
+        t = work[tau + j] - work[joint + j] * w + J[0, j] * fx + J[1, j] * fy + J[2, j] * fz
+        friction = work[joint + n + j]
+        if friction != 0.0:
+            t -= friction * math.tanh(w / eps)
+        work[total + j] = t
+
+
+@njit(cache=True, error_model="numpy")
+def _rk4_stage(a, work):
+    """Store this stage's derivative k = [q', a] and prepare the next stage's state in xs
+    (and Pinocchio's q); after the fourth, x += h/6 (k1 + 2 k2 + 2 k3 + k4), xs = x and
+    the next period's first stage."""
+    n, nq = int(work[0]), int(work[1])
+    x, xs, k, _, _, _, _, _, _, _, _ = layout(n, nq)
+    m = 2 * n
+    h, stage = work[2], int(work[3])
+    ks = k + stage * m
+    for j in range(n):
+        work[ks + j] = work[xs + n + j]
+        work[ks + n + j] = a[j]
+    if stage < 3:
+        c = h if stage == 2 else 0.5 * h
+        for j in range(m):
+            work[xs + j] = work[x + j] + c * work[ks + j]
+        work[3] = stage + 1
+    else:
+        w = h / 6.0
+        for j in range(m):
+            work[x + j] += w * (work[k + j] + work[k + 3 * m + j]
+                                + 2.0 * (work[k + m + j] + work[k + 2 * m + j]))
+            work[xs + j] = work[x + j]
+        work[3] = 0.0
+    _configuration(work)
+
+
+_frame_jacobian = pin.computeFrameJacobian
+
+
+def _frame_jacobian_of_one_joint(model, data, q, frame, reference):
+    """pin.computeFrameJacobian as a 6 x 1 matrix (eigenpy hands a one-column matrix back as
+    a vector)."""
+    return pin.computeFrameJacobian(model, data, q, frame, reference).reshape(6, 1)
+
+
+# -- building ----------------------------------------------------------------------------------
+def _chain(values: dict) -> ChainModel:
+    try:
+        return load_chain(values["robot_description"], values["urdf_file"], values["base_link"],
+                          values["tip_link"], values["gravity"])
+    except RobotModelError as exc:
+        raise ParameterError(str(exc)) from None
+
+
+def _locked_joints(values: dict, chain: ChainModel) -> tuple[tuple[str, ...], np.ndarray]:
+    """Names and locked positions of the URDF's one-coordinate joints off the chain, in the
+    URDF model's order (the position load_chain locked them at)."""
+    full = parse_urdf(urdf_text(values["robot_description"], values["urdf_file"]))
+    q = _locked_configuration(full)
+    names, positions = [], []
+    for j in range(1, full.njoints):
+        joint, name = full.joints[j], full.names[j]
+        if name in chain.joint_names or joint.nv != 1:
+            continue
+        i = joint.idx_q
+        positions.append(math.atan2(q[i + 1], q[i]) if joint.nq == 2 else float(q[i]))
+        names.append(name)
+    return tuple(names), np.array(positions, dtype=float)
+
+
+def _initial_positions(values: dict, chain: ChainModel) -> np.ndarray:
+    given = np.asarray(values["initial_joint_positions"], dtype=float)
+    if given.size == 0:
+        neutral = pin.neutral(chain.model)
+        angles = np.array([
+            math.atan2(neutral[chain.model.joints[j + 1].idx_q + 1],
+                       neutral[chain.model.joints[j + 1].idx_q]) if kind == CONTINUOUS
+            else neutral[chain.model.joints[j + 1].idx_q]
+            for j, kind in enumerate(chain.kinds)])
+        return np.clip(angles, chain.limits.lower, chain.limits.upper)
+    if given.shape != (chain.n,):
+        raise ParameterError(f"initial_joint_positions needs {chain.n} values (joints "
+                             f"{', '.join(chain.joint_names)}), got {given.size}")
+    return given
+
+
+def _three(values: dict, name: str, default: np.ndarray) -> np.ndarray:
+    """A 3-vector parameter that may be left empty (then ``default``)."""
+    given = np.asarray(values[name], dtype=float)
+    if given.size == 0:
+        return default
+    if given.shape != (3,):
+        raise ParameterError(f"{name} needs 3 values (or none), got {given.size}")
+    return given
+
+
+def _surface(values: dict, r0: np.ndarray) -> np.ndarray:
+    """The packed surface (:mod:`cr_sim.models.contact3d`) from the parameters, with the tip
+    at r0 (base frame) for the defaults that touch it."""
+    normal = np.asarray(values["surface_normal"], dtype=float)
+    norm = float(np.linalg.norm(normal))
+    if not norm > 0.0:
+        raise ParameterError("surface_normal must not be zero")
+    normal = normal / norm
+    kind, radius = values["surface"], values["surface_radius"]
+    if kind == "sphere":
+        anchor = _three(values, "surface_centre", r0 - radius * normal)
+    else:
+        anchor = _three(values, "surface_point", r0)
+    return contact3d.packed(SURFACES[kind], anchor, normal, radius, values["stiffness"],
+                            values["damping"], values["friction_coulomb"],
+                            values["friction_viscous"], values["friction_velocity_epsilon"])
+
+
+class URDFSurface(Plant):
+    """A URDF chain pressing a compliant plane or sphere with its tip (see the module
+    docstring). State x = [q (n), q' (n)] of the chain."""
+
+    command_interface = "effort"
+    sensor_fields = ("contact_depth",)
+
+    def __init__(self, values: dict):
+        if values["substeps"] < 0:
+            raise ParameterError(f"substeps must be >= 0, got {values['substeps']}")
+        self.chain = _chain(values)
+        chain, n = self.chain, self.chain.n
+        self._n = n
+        self._locked_names, self._locked_q = _locked_joints(values, chain)
+        self.joint_names = (*chain.joint_names, *self._locked_names)
+        self.command_joint_names = tuple(chain.joint_names)
+        self.wrench_frame = values["base_link"]
+        self.model, self._data = chain.model, chain.model.createData()
+        self._query = chain.model.createData()      # for model queries, off the hot path
+        self._tip = chain.tip
+        q0 = _initial_positions(values, chain)
+        self.surface = _surface(values, chain.tip_pose(q0).translation)
+        self._noise = (values["position_noise_std"], values["velocity_noise_std"],
+                       values["force_noise_std"])
+        self._noisy = any(self._noise)
+        self._rng = np.random.default_rng(values["noise_seed"])
+        self._allocate()
+        self._t = 0.0
+        self.reset_state(q0)
+        self.step_rate = self.stiffest_rate(q0)
+        self.substeps = int(values["substeps"])
+        self.max_contact_force = float(values["max_contact_force"])
+        self._auto: tuple[float, int] = (math.nan, 1)
+
+    def _allocate(self) -> None:
+        """The work array of the compiled glue (layout above) and the views of it the plant
+        and Pinocchio use, made once: the hot path allocates nothing of its own."""
+        chain, n, model = self.chain, self._n, self.model
+        x, xs, _, tau, total, contact, joint, qmap, surface, qp, end = layout(n, model.nq)
+        work = np.zeros(end)
+        work[0], work[1] = n, model.nq
+        work[joint:qmap] = np.concatenate([chain.damping, chain.friction, [JOINT_FRICTION_EPSILON]])
+        work[qmap:surface] = ([model.joints[j + 1].idx_q for j in range(n)]
+                              + [float(kind == CONTINUOUS) for kind in chain.kinds])
+        work[surface:qp] = self.surface
+        work[qp:end] = pin.neutral(model)
+        self._work = work
+        self.surface = work[surface:qp]                # packed surface (contact3d): edit in place
+        self._x = work[x:xs]                           # the state [q, q']
+        self._vs = work[xs + n:xs + 2 * n]             # the stage velocities, for aba
+        self._tau = work[tau:total]                    # the held command
+        self._total = work[total:contact]              # the stage's total joint torque
+        self._contact = work[contact:joint]            # [f (3), depth, r' (3)]
+        self._qp = work[qp:end]                        # Pinocchio's q of the stage
+        self._none = np.empty(0)
+        self._jacobian = _frame_jacobian if n > 1 else _frame_jacobian_of_one_joint
+        self._tip_r = self._live_tip_position()
+        self._fresh = False
+
+    def _live_tip_position(self) -> np.ndarray | None:
+        """A numpy view of ``data.oMf[tip].translation`` that follows every Jacobian
+        computation (eigenpy maps it onto Pinocchio's memory), or None if this Pinocchio
+        hands out copies (then every stage reads it anew)."""
+        model, data, tip = self.model, self._data, self._tip
+        pin.computeFrameJacobian(model, data, pin.neutral(model), tip, pin.LOCAL_WORLD_ALIGNED)
+        view = data.oMf[tip].translation
+        probe = self.chain.configuration(np.full(self._n, 0.3))
+        pin.computeFrameJacobian(model, data, probe, tip, pin.LOCAL_WORLD_ALIGNED)
+        live = np.array_equal(view, data.oMf[tip].translation) and not view.flags.owndata
+        return view if live else None
+
+    # -- model queries (Pinocchio; not on the hot path) ----------------------------------------
+    def _q(self, q: np.ndarray) -> np.ndarray:
+        """Pinocchio's q for chain positions (the first n values of ``q``)."""
+        return self.chain.configuration(np.asarray(q, dtype=float)[:self._n])
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """G(q) of the chain (N m); ``q`` may be the chain's positions or all of joint_names'."""
+        return pin.computeGeneralizedGravity(self.model, self._query, self._q(q)).copy()
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """M(q) of the chain, symmetric."""
+        M = np.reshape(pin.crba(self.model, self._query, self._q(q)), (self._n, self._n))
+        return np.triu(M) + np.triu(M, 1).T
+
+    def tip_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """J_v(q) (3 x n): r' = J_v q' in the base frame."""
+        J = pin.computeFrameJacobian(self.model, self._query, self._q(q), self._tip,
+                                     pin.LOCAL_WORLD_ALIGNED)
+        return J.reshape(6, -1)[:3].copy()
+
+    def tip_position(self, q: np.ndarray) -> np.ndarray:
+        """r(q): the tip's position in the base frame (m)."""
+        return self.chain.tip_pose(np.asarray(q, dtype=float)[:self._n]).translation.copy()
+
+    def kinetic_energy(self) -> float:
+        """T = 1/2 q'^T M(q) q' now (J)."""
+        q, v = self._x[:self._n], self._x[self._n:]
+        return 0.5 * float(v @ self.mass_matrix(q) @ v)
+
+    def surface_normal_at(self, r: np.ndarray) -> np.ndarray:
+        """The outward unit normal of the surface nearest r (plane: n; sphere: (r - c)/|r - c|)."""
+        s = self.surface
+        if s[0] == contact3d.SPHERE:
+            d = np.asarray(r, dtype=float) - s[1:4]
+            dist = float(np.linalg.norm(d))
+            return d / dist if dist > 0.0 else np.array([0.0, 0.0, 1.0])
+        return s[4:7].copy()
+
+    def stiffest_rate(self, q: np.ndarray) -> float:
+        """omega_c (1/s) of the automatic substep rule at q (module docstring)."""
+        Minv = np.linalg.inv(self.mass_matrix(q))
+        joint = np.diag(self.chain.damping + self.chain.friction / JOINT_FRICTION_EPSILON)
+        rates = [float(np.max(np.linalg.eigvals(Minv @ joint).real, initial=0.0))]
+        s = self.surface
+        if s[0] != contact3d.NONE:
+            Jv = self.tip_jacobian(q)
+            mobility = Jv @ Minv @ Jv.T                 # inverse apparent mass (3 x 3), 1/kg
+            normal = self.surface_normal_at(self.tip_position(q))
+            inv_mn = float(normal @ mobility @ normal)
+            K, D, cv = s[8], s[9], s[11]
+            rates.append(math.sqrt(K * inv_mn + (D * inv_mn) ** 2))
+            rates.append(cv * float(np.linalg.eigvalsh(mobility)[-1]))
+        return max(rates)
+
+    def substeps_for(self, dt: float) -> int:
+        """RK4 steps per period dt: ``substeps``, or if 0 the automatic rule
+        max(1, ceil(dt omega_c / 0.5))."""
+        if self.substeps > 0:
+            return self.substeps
+        if self._auto[0] != dt:
+            self._auto = (dt, max(1, math.ceil(dt * self.step_rate / STEP_RATE_LIMIT - 1e-12)))
+        return self._auto[1]
+
+    # -- state and stepping --------------------------------------------------------------------
+    def reset_state(self, q0, v0=None) -> None:
+        """Put the chain at positions q0 (at rest unless velocities v0 are given), time and
+        held command unchanged."""
+        n = self._n
+        q0 = np.asarray(q0, dtype=float)
+        v0 = np.zeros(n) if v0 is None else np.asarray(v0, dtype=float)
+        if q0.shape != (n,) or v0.shape != (n,):
+            raise ValueError(f"reset_state needs {n} positions and {n} velocities")
+        self._x[:n], self._x[n:] = q0, v0
+        self._fresh = False
+
+    def step(self, command: np.ndarray, dt: float) -> None:
+        """Advance by dt with the joint torques ``command`` held (a refused command keeps the
+        last): substeps_for(dt) classical RK4 steps, the contact force at every stage."""
+        command = np.asarray(command, dtype=np.float64)
+        take_command(self._tau, command if command.ndim == 1 else self._none)
+        substeps = self.substeps_for(dt)
+        model, data, tip, frame = self.model, self._data, self._tip, pin.LOCAL_WORLD_ALIGNED
+        work, qp, vs, total, r = self._work, self._qp, self._vs, self._total, self._tip_r
+        aba, jacobian, convention = pin.aba, self._jacobian, pin.Convention.WORLD
+        _begin(work, dt / substeps)
+        for _ in range(4 * substeps):
+            J = jacobian(model, data, qp, tip, frame)
+            _joint_torque(J, data.oMf[tip].translation if r is None else r, work)
+            _rk4_stage(aba(model, data, qp, vs, total, convention), work)
+        self._t += dt
+        self._fresh = False
+
+    def _evaluate(self) -> None:
+        """Contact force and depth at the current state (lazily, for the sensors)."""
+        if self._fresh:
+            return
+        _begin(self._work, 0.0)
+        J = self._jacobian(self.model, self._data, self._qp, self._tip, pin.LOCAL_WORLD_ALIGNED)
+        r = self._tip_r if self._tip_r is not None else self._data.oMf[self._tip].translation
+        _joint_torque(J, r, self._work)
+        self._fresh = True
+
+    # -- sensors -------------------------------------------------------------------------------
+    def contact_force(self) -> np.ndarray:
+        """The true (noise-free) contact force on the tip now, base frame (N)."""
+        self._evaluate()
+        return self._contact[:3].copy()
+
+    def contact_depth(self) -> float:
+        """Penetration depth of the tip now (m; negative: distance when separated)."""
+        self._evaluate()
+        return float(self._contact[3])
+
+    def sensors(self) -> list[float]:
+        """[contact_depth] (m; -inf with surface "none")."""
+        return [self.contact_depth()]
+
+    def contact_force_magnitude(self) -> float:
+        """|f| (N) of the true contact force (no noise drawn: for a force reflex)."""
+        self._evaluate()
+        fx, fy, fz = self._contact[0], self._contact[1], self._contact[2]
+        return math.sqrt(fx * fx + fy * fy + fz * fz)
+
+    def true_velocity(self) -> list[float]:
+        """Joint velocities in ``joint_names`` order without noise (the locked ones: 0)."""
+        return [*self._x[self._n:].tolist(), *[0.0] * self._locked_q.size]
+
+    @property
+    def held(self) -> np.ndarray:
+        """The joint torques held now (the last accepted command)."""
+        return self._tau.copy()
+
+    def measurement(self) -> Measurement:
+        n, x, locked = self._n, self._x, self._locked_q.size
+        q, v = x[:n].copy(), x[n:].copy()
+        force = self.contact_force()
+        if self._noisy:
+            q_std, v_std, f_std = self._noise
+            q += q_std * self._rng.standard_normal(n)
+            v += v_std * self._rng.standard_normal(n)
+            force += f_std * self._rng.standard_normal(3)
+        zeros = np.zeros(locked)
+        return Measurement(self._t, np.concatenate([q, self._locked_q]),
+                           np.concatenate([v, zeros]), np.concatenate([self._tau, zeros]), force)
+
+    # -- limits and brakes ---------------------------------------------------------------------
+    def joint_limits(self) -> JointLimits:
+        """The chain's URDF limits (inf where none is given)."""
+        limits = self.chain.limits
+        return JointLimits(limits.effort.copy(), limits.velocity.copy(), limits.lower.copy(),
+                           limits.upper.copy())
+
+    def begin_safe_stop(self) -> None:
+        """Engage the brakes: remember where the chain's joints are."""
+        self._brake_hold = self.measurement().position[:self._n].copy()
+
+    def safe_stop_command(self) -> np.ndarray:
+        """The base class's brakes on the chain's joints (the locked ones take no command):
+        tau = G(q) - K_d q' - K_p (q - q_stop)."""
+        m, n = self.measurement(), self._n
+        q, v = m.position[:n], m.velocity[:n]
+        hold = self._brake_hold if self._brake_hold is not None else q
+        return self.gravity(q) - self.brake_damping * v - self.brake_stiffness * (q - hold)
