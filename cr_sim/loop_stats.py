@@ -3,8 +3,8 @@
 Round trip ("command age"): wall time from publishing a state to receiving the command
 computed from it. A cycle is fresh when the command applied at a tick answers the state
 published at the tick before. The plant node also reports its safety state here (safe
-stop, commands clipped and refused, publishers on its topics): attributes it sets, so
-every loop that uses these statistics publishes the same PLANT_TIMING_FIELDS.
+stop and its reason, commands clipped and refused, publishers on its topics): attributes
+it sets, so every loop that uses these statistics publishes the same PLANT_TIMING_FIELDS.
 """
 
 from __future__ import annotations
@@ -13,6 +13,16 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+
+#: Values of ``safe_stop_reason`` (PLANT_TIMING_FIELDS): why the plant's safe stop is engaged.
+SAFE_STOP_NONE = 0
+SAFE_STOP_WATCHDOG = 1
+SAFE_STOP_CONTACT_FORCE = 2
+SAFE_STOP_JOINT_VELOCITY = 3
+#: The reasons in words (log lines).
+SAFE_STOP_REASONS = {SAFE_STOP_NONE: "none", SAFE_STOP_WATCHDOG: "watchdog",
+                     SAFE_STOP_CONTACT_FORCE: "contact force reflex",
+                     SAFE_STOP_JOINT_VELOCITY: "joint velocity reflex"}
 
 BIN_S = 10e-6       # histogram resolution of whole-run round trips
 MAX_AGE_S = 1.0     # longer round trips are counted in the last bin
@@ -51,6 +61,7 @@ class LoopStats:
         self._window_start: float | None = None
         #: Safety state, set by the plant node (0 where a loop has none).
         self.safe_stop = 0.0
+        self.safe_stop_reason = SAFE_STOP_NONE
         self.commands_clipped = 0
         self.commands_refused = 0
         self.command_publishers = 0
@@ -120,6 +131,7 @@ class LoopStats:
             float(self.command_publishers),
             float(self.state_publishers),
             float(self.window_max_missed_run),
+            float(self.safe_stop_reason),
         ]
         self._window_ages.clear()
         self._window_cycles = self._window_fresh = 0

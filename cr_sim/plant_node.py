@@ -37,8 +37,17 @@ Safety (issue 7), modelled on libfranka:
   plant's brakes, :meth:`~cr_sim.plants.base.Plant.safe_stop_command`: gravity held,
   joints damped to rest and held), ``hold`` (keep the last command) or ``disabled``. The
   safe stop is logged once with its reason, shows as ``safe_stop`` = 1 in /plant/timing
-  and lasts until someone sets the parameter ``resume`` to true (``cr_param set plant
-  resume true``); the plant then resets ``resume`` to false and applies commands again.
+  (``safe_stop_reason`` = 1) and lasts until someone sets the parameter ``resume`` to true
+  (``cr_param set plant resume true``); the plant then resets ``resume`` to false and
+  applies commands again.
+- Reflexes (issue 20; libfranka's Cartesian and joint reflexes), realtime and lockstep:
+  after every plant step, on the true state, a contact force above the scenario's
+  ``max_contact_force`` (:meth:`~cr_sim.plants.base.Plant.contact_force_magnitude`) or a
+  joint velocity above its URDF ``<limit velocity>``
+  (:meth:`~cr_sim.plants.base.Plant.velocity_limits`) trips the same safe stop, logged once
+  with the values (``REFLEX: ...``), ``safe_stop_reason`` 2 (force) or 3 (velocity), ended
+  by ``resume`` as above. In lockstep each command still advances the plant one period (the
+  loop and a recording go on deterministically) but the brakes' command is applied instead.
 - Another publisher on /joint_commands or /joint_states (a second session on this
   domain, a rogue node) is checked once a second: warned once and counted in
   ``command_publishers`` / ``state_publishers``, so the recording shows it.
@@ -73,7 +82,14 @@ from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.raw_messages import JointStateFields, JointStateReader
 from cr_control.nodes.ros_parameters import declare, police_changes
 from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
-from cr_sim.loop_stats import LoopStats
+from cr_sim.loop_stats import (
+    SAFE_STOP_CONTACT_FORCE,
+    SAFE_STOP_JOINT_VELOCITY,
+    SAFE_STOP_NONE,
+    SAFE_STOP_REASONS,
+    SAFE_STOP_WATCHDOG,
+    LoopStats,
+)
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS
 
@@ -217,6 +233,11 @@ class PlantNode(Node):
         self._new_command = False
         self._missed_run = 0
         self.safe_stop = False
+        # Reflexes (both modes): one comparison per step for the force, a short loop for
+        # the joints with a URDF velocity limit.
+        self._max_force = float(self.plant.max_contact_force)
+        self._velocity_limits = [(i, limit, self.joint_names[i])
+                                 for i, limit in self.plant.velocity_limits()]
         self._resume_requested = False
         self._warned: set[str] = set()
         self._started = False
@@ -274,6 +295,8 @@ class PlantNode(Node):
             + f", command limits {self.limiter.lower}..{self.limiter.upper}, "
             f"watchdog {self._watchdog}"
             + ("" if self._watchdog == "disabled" else f" after {self._missed_limit} missed cycles")
+            + f", reflexes at contact force > {self._max_force:g} N"
+            + "".join(f", |{name}'| > {limit:g}" for _, limit, name in self._velocity_limits)
             + "; waiting for a controller")
 
     # -- parameters -----------------------------------------------------------------
@@ -289,6 +312,7 @@ class PlantNode(Node):
             return
         self.safe_stop = False
         self.stats.safe_stop = 0.0
+        self.stats.safe_stop_reason = SAFE_STOP_NONE
         self._missed_run = 0
         self._armed = False      # re-armed by the next command; the brake torque is held till then
         self.get_logger().warn("resumed from safe stop on request: applying commands again")
@@ -320,7 +344,9 @@ class PlantNode(Node):
         self.get_logger().info(
             f"done: {self.plant.time:.3f} s simulated in {time.monotonic() - self._t0_wall:.3f} s wall, "
             f"{self.stats.total_cycles} cycles, {self.stats.commands_refused} commands refused, "
-            f"{self.stats.commands_clipped} clipped" + (", in safe stop" if self.safe_stop else ""))
+            f"{self.stats.commands_clipped} clipped"
+            + (f", in safe stop ({SAFE_STOP_REASONS[self.stats.safe_stop_reason]})"
+               if self.safe_stop else ""))
         wait_for_readers(list(self.publishers), 2.0)   # the last messages reach the recorder
         self.finished.set_result(True)
 
@@ -421,10 +447,12 @@ class PlantNode(Node):
             self.stats.round_trip(time.monotonic() - sent)
         self.command_stamp = key
         self._new_command = True
-        if self.safe_stop:
-            return                          # braking until resumed
-        self._command_list = limited
-        self.command = np.array(limited)
+        if not self.safe_stop:
+            self._command_list = limited
+            self.command = np.array(limited)
+        elif not self.lockstep:
+            return                          # braking (every tick) until resumed
+        # lockstep in safe stop: the command still advances the plant, with the brakes
         if key != self.state_stamp or not self._started or self.finished.done():
             return
         if self.lockstep:
@@ -433,9 +461,48 @@ class PlantNode(Node):
             self._step_ahead()
 
     # -- stepping -------------------------------------------------------------------
+    def _step(self) -> None:
+        """One period of the plant: with the held command, or the brakes' in a safe stop;
+        then the reflexes on the new state."""
+        if self.safe_stop:                               # brakes act on every step
+            self._command_list = self.limiter.bound(self.plant.safe_stop_command())
+            self.command = np.array(self._command_list)
+            self.plant.step(self.command, self.period)
+            return
+        self.plant.step(self.command, self.period)
+        force = self.plant.contact_force_magnitude()
+        if force > self._max_force:
+            self._engage_safe_stop(
+                SAFE_STOP_CONTACT_FORCE,
+                f"REFLEX: contact force {force:.4g} N > max_contact_force {self._max_force:g} N")
+        elif self._velocity_limits:
+            velocity = self.plant.true_velocity()
+            for i, limit, name in self._velocity_limits:
+                if abs(velocity[i]) > limit:
+                    self._engage_safe_stop(
+                        SAFE_STOP_JOINT_VELOCITY,
+                        f"REFLEX: joint {name} velocity {velocity[i]:.4g} beyond its URDF "
+                        f"<limit velocity> {limit:g}")
+                    return
+
+    def _engage_safe_stop(self, reason: int, what: str) -> None:
+        """Brake from the next step on until resumed; log it once with why (a safe stop
+        already engaged keeps its reason)."""
+        if self.safe_stop:
+            return
+        self.safe_stop = True
+        self.stats.safe_stop = 1.0
+        self.stats.safe_stop_reason = reason
+        self.plant.begin_safe_stop()
+        self.get_logger().error(
+            f"{what} at t = {self.plant.time:.3f} s: "
+            f"{'braking' if reason == SAFE_STOP_WATCHDOG else 'safe stop, braking'} "
+            f"({self.plant.describe_safe_stop()}). Commands are ignored until the parameter "
+            "resume is set to true.")
+
     def _lockstep_step(self) -> None:
         start = time.perf_counter()
-        self.plant.step(self.command, self.period)
+        self._step()
         self.stats.cycle(True, time.perf_counter() - start)
         if self._out_of_time():
             self._finish()
@@ -447,7 +514,7 @@ class PlantNode(Node):
         """Realtime: integrate the coming tick's first period with the command that just
         answered the latest state (the tick then publishes at once)."""
         start = time.perf_counter()
-        self.plant.step(self.command, self.period)
+        self._step()
         self._ahead_time = time.perf_counter() - start
 
     def _resend_if_stalled(self) -> None:
@@ -479,13 +546,7 @@ class PlantNode(Node):
             self.get_logger().warn(f"watchdog: {reason}: holding the last command "
                                    "(watchdog_reaction hold)", throttle_duration_sec=5.0)
             return
-        self.safe_stop = True
-        self.stats.safe_stop = 1.0
-        self.plant.begin_safe_stop()
-        self.get_logger().error(
-            f"SAFE STOP: {reason}: braking (gravity held, damping {self.plant.brake_damping:g} "
-            f"N m s/rad, holding stiffness {self.plant.brake_stiffness:g} N m/rad). Commands are "
-            "ignored until the parameter resume is set to true.")
+        self._engage_safe_stop(SAFE_STOP_WATCHDOG, f"SAFE STOP: watchdog: {reason}")
 
     def _tick(self) -> None:
         if self.finished.done():
@@ -506,10 +567,7 @@ class PlantNode(Node):
         self._carry = max(due - substeps * self.period, -self.period)
         ahead, self._ahead_time = self._ahead_time, None
         for _ in range(substeps - (ahead is not None)):
-            if self.safe_stop:                           # brakes act on every substep
-                self._command_list = self.limiter.bound(self.plant.safe_stop_command())
-                self.command = np.array(self._command_list)
-            self.plant.step(self.command, self.period)
+            self._step()
         self.stats.cycle(fresh, time.perf_counter() - start + (ahead or 0.0))
         if self._out_of_time():
             self._finish()
@@ -544,7 +602,9 @@ class PlantNode(Node):
             f"fresh={100 * d['window_fresh_share']:.2f}% "
             f"round trip p50/p99/max={d['window_age_p50_ms']:.3f}/{d['window_age_p99_ms']:.3f}/"
             f"{d['window_age_max_ms']:.3f} ms step={d['step_time_us']:.0f} us "
-            f"publish={d['publish_time_us']:.0f} us" + (" SAFE STOP" if self.safe_stop else ""))
+            f"publish={d['publish_time_us']:.0f} us"
+            + (f" SAFE STOP ({SAFE_STOP_REASONS[self.stats.safe_stop_reason]})" if self.safe_stop
+               else ""))
 
 
 def main(args: list[str] | None = None) -> int:

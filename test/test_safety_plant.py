@@ -47,15 +47,19 @@ def test_effort_limits_come_from_the_urdf_and_the_rate_limit_from_libfranka():
 
 
 def test_every_scenario_gets_limits_or_is_left_unbounded_with_a_warning():
+    from cr_control.tools import robots
     from cr_sim.plant_node import unlimited_joints
     from cr_sim.plants.registry import SCENARIOS
 
+    panda = {k: v for k, v in robots.plant_values(robots.robot("panda")).items() if k != "scenario"}
     for name in SCENARIOS:
-        plant = make_plant(name)
+        plant = make_plant(name, panda if name == "urdf_surface" else None)  # needs a robot
         limiter = command_limiter(plant, SETTINGS, PERIOD)      # never refuses to start
-        bounded = [n for n in plant.joint_names if n not in unlimited_joints(plant, limiter)]
-        if plant.command_interface == "effort" and getattr(plant, "arm", None) is not None:
-            assert bounded == list(plant.joint_names), name
+        bounded = [n for n in plant.command_joints if n not in unlimited_joints(plant, limiter)]
+        if plant.command_interface == "effort" and (getattr(plant, "arm", None) is not None
+                                                    or name == "urdf_surface"):
+            assert bounded == list(plant.command_joints), name
+    assert limiter is not None
 
 
 def test_commands_are_clipped_into_bounds_and_rate_and_counted():

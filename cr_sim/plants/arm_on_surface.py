@@ -193,6 +193,7 @@ class ArmOnSurface(Plant):
         self._rng = np.random.default_rng(values["noise_seed"])
         n = len(self.joint_names)
         self._n = n
+        self.max_contact_force = float(values["max_contact_force"])
         self._t = 0.0
         self._effort = np.zeros(n)
         self.sensors = np.zeros(len(SENSORS))
@@ -213,6 +214,14 @@ class ArmOnSurface(Plant):
     def contact_force(self) -> np.ndarray:
         """Force of the surface on the end effector now (2 components)."""
         return self.sensors[:2].copy()
+
+    def contact_force_magnitude(self) -> float:
+        """|f| (N) of the surface's force on the end effector, without the measurement noise."""
+        return math.hypot(self.sensors[0], self.sensors[1])
+
+    def true_velocity(self) -> list[float]:
+        """q' without the measurement noise."""
+        return self._x[self._n:].tolist()
 
     def step(self, command: np.ndarray, dt: float) -> None:
         """Advance by dt with joint torques ``command`` held (a refused command keeps the last)."""

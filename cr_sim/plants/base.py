@@ -5,6 +5,11 @@ Besides stepping and measuring, a plant says what its actuators may do
 Pinocchio model) and how it brakes (:meth:`Plant.safe_stop_command`): the plant node
 builds its command limits (:class:`CommandLimiter`) and its watchdog's safe stop on them
 (issue 7, modelled on libfranka's limits and ``communication_constraints_violation``).
+It also reports what the node's reflexes watch (issue 20, libfranka's Cartesian and joint
+reflexes): the true contact force (:meth:`Plant.contact_force_magnitude`, against the
+scenario's ``max_contact_force``) and the true joint velocities
+(:meth:`Plant.true_velocity`, against the URDF's ``<limit velocity>``:
+:meth:`Plant.velocity_limits`).
 """
 
 from __future__ import annotations
@@ -16,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+
+from cr_control.core.parameters import Param
 
 
 @dataclass
@@ -47,6 +54,14 @@ class JointLimits:
         """No limits at all (plants without a model)."""
         inf = np.full(n, np.inf)
         return cls(inf.copy(), inf.copy(), -inf, inf.copy())
+
+
+def max_contact_force_parameter(default: float, why: str) -> Param:
+    """The scenario parameter ``max_contact_force`` (N, > 0, read-only) of the force reflex
+    with its default and the reason for it (which task force it is a multiple of)."""
+    return Param("max_contact_force", default, "Force reflex (libfranka's Cartesian reflex): "
+                 "a contact force above this (N) safe-stops the plant until resume is set; "
+                 f"{why}", "positive", read_only=True)
 
 
 @njit(cache=True, error_model="numpy")
@@ -91,7 +106,17 @@ class Plant(ABC):
     #: Safe stop: holding stiffness K_p (N m/rad) about the position where braking began.
     brake_stiffness: float = 1000.0
 
+    #: Force reflex (issue 20): the plant node safe-stops the plant when
+    #: :meth:`contact_force_magnitude` exceeds this (N); scenarios set it from their
+    #: ``max_contact_force`` parameter (:func:`max_contact_force_parameter`), inf = never.
+    max_contact_force: float = math.inf
+    #: Position plants: speed (m/s or rad/s, per joint) at which the safe stop moves the
+    #: command to :meth:`contact_free_position` where the URDF gives no velocity limit.
+    retract_speed: float = 0.1
+
     _brake_hold: np.ndarray | None = None
+    #: Position plants' retract in a safe stop: (start time, start, target, speeds) or None.
+    _retract: tuple[float, list[float], list[float], list[float]] | None = None
 
     @abstractmethod
     def step(self, command: np.ndarray, dt: float) -> None:
@@ -145,20 +170,80 @@ class Plant(ABC):
             gravity = getattr(getattr(self, "arm", None), "gravity", None)
         return np.asarray(gravity(q), dtype=float) if callable(gravity) else None
 
+    # -- what the reflexes watch (the plant node, after every step) ---------------------------
+    def contact_force_magnitude(self) -> float:
+        """|f| (N): the contact force the force reflex compares with ``max_contact_force``,
+        true (no measurement noise: noise must not trip the reflex, and drawing it here would
+        change the measurements' noise sequence). By default the norm of the plant's true
+        ``contact_force()`` where it has one, else of the measured wrench force; plants whose
+        contact force is not the wrench (a constraint's lambda) override it. Called every
+        cycle: keep it cheap."""
+        contact = getattr(self, "contact_force", None)
+        force = contact() if callable(contact) else self.measurement().force
+        return math.sqrt(sum(float(f) * float(f) for f in force))
+
+    def true_velocity(self) -> Sequence[float]:
+        """The joint velocities in ``joint_names`` order, true (no measurement noise), for the
+        joint velocity reflex. By default the measured ones; plants with velocity noise
+        override it (as every thesis plant does). Called every cycle on plants with velocity
+        limits: keep it cheap."""
+        return self.measurement().velocity.tolist()
+
+    def velocity_limits(self) -> list[tuple[int, float]]:
+        """(index into :meth:`true_velocity`, limit) of every joint with a URDF
+        ``<limit velocity>``: the commanded joints' finite :meth:`joint_limits` velocities by
+        default (override to add uncommanded joints that have one)."""
+        names = list(self.joint_names)
+        return [(names.index(name), float(limit))
+                for name, limit in zip(self.command_joints, self.joint_limits().velocity, strict=True)
+                if 0.0 < limit < math.inf]
+
+    # -- safe stop ----------------------------------------------------------------------------
+    def contact_free_position(self) -> np.ndarray | None:
+        """Position plants: the command at which the end effector is out of contact (at most
+        touching at zero force), where the safe stop retracts to; None (the default): hold
+        the position where braking began."""
+        return None
+
     def begin_safe_stop(self) -> None:
-        """Engage the brakes: remember where the joints are, to hold them there."""
+        """Engage the brakes: remember where the joints are, to hold them there. Position
+        plants with a :meth:`contact_free_position` start retracting the command (from the
+        held one) to it instead, at the URDF's velocity limit (else ``retract_speed``)."""
         self._brake_hold = self.measurement().position.copy()
+        self._retract = None
+        if self.command_interface != "position":
+            return
+        target = self.contact_free_position()
+        if target is None:
+            return
+        held = getattr(self, "held", None)
+        start = held if held is not None and np.shape(held) == np.shape(target) else self._brake_hold
+        speeds = [float(v) if 0.0 < v < math.inf else self.retract_speed
+                  for v in self.joint_limits().velocity]
+        self._retract = (self._t, [float(x) for x in start], [float(x) for x in target], speeds)
+
+    def retract_command(self) -> np.ndarray:
+        """Position plants in a safe stop: the command moving from where it was to the
+        contact-free position at constant speed (per joint), then held there."""
+        t0, start, target, speeds = self._retract
+        travel = self._t - t0
+        return np.array([b if abs(b - a) <= v * travel else a + math.copysign(v * travel, b - a)
+                         for a, b, v in zip(start, target, speeds, strict=True)])
 
     def safe_stop_command(self) -> np.ndarray:
-        """The braking command while in safe stop (effort plants), from the measured state:
+        """The braking command while in safe stop, from the measured state. Effort plants:
 
             tau = G(q) - K_d q' - K_p (q - q_stop)
 
         G(q) holds gravity (where the plant offers it), K_d = ``brake_damping`` brings the
         joints to rest and K_p = ``brake_stiffness`` (0 = damping only) holds them where
-        braking began against contact forces, like a joint brake. Position plants hold the
-        position where braking began. Override for plants that brake differently.
+        braking began against contact forces, like a joint brake. Position plants cannot be
+        braked with torques: they retract the command to :meth:`contact_free_position` and
+        hold it there (:meth:`retract_command`), or hold the position where braking began if
+        the plant names none. Override for plants that brake differently.
         """
+        if self._retract is not None:
+            return self.retract_command()
         m = self.measurement()
         q, v = m.position, m.velocity
         hold = self._brake_hold if self._brake_hold is not None else q
@@ -167,6 +252,18 @@ class Plant(ABC):
         tau = -self.brake_damping * v - self.brake_stiffness * (q - hold)
         gravity = self.gravity_torque(q)
         return tau + gravity if gravity is not None else tau
+
+    def describe_safe_stop(self) -> str:
+        """The brakes in words, for the plant node's log line when a safe stop begins."""
+        if self.command_interface == "position":
+            if self._retract is None:
+                return "holding the position where braking began"
+            _, start, target, speeds = self._retract
+            return (f"retracting the command from {[round(x, 4) for x in start]} to the "
+                    f"contact-free position {[round(x, 4) for x in target]} at "
+                    f"{[round(v, 4) for v in speeds]} per s, then holding it")
+        return (f"gravity held, damping {self.brake_damping:g} N m s/rad, holding stiffness "
+                f"{self.brake_stiffness:g} N m/rad")
 
 
 class CommandLimiter:
@@ -231,6 +328,11 @@ class ConstrainedPlant(Plant):
     def constraint_force(self) -> float:
         """lambda (N): the contact force along the constraint normal (> 0: pressing)."""
         return self.sensors()[0]
+
+    def contact_force_magnitude(self) -> float:
+        """|lambda| (N): the constraint force, true (the sensors carry no noise), either sign
+        (the contact is bilateral: a large pull is as wrong as a large push)."""
+        return abs(self.constraint_force)
 
     @property
     def constraint_error(self) -> tuple[float, float]:

@@ -39,6 +39,7 @@ import numpy as np
 from cr_control.core.parameters import Param, ParameterError
 from cr_sim.models.surfaces import circle
 from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS, ArmOnSurface, arm_parameters
+from cr_sim.plants.base import max_contact_force_parameter
 
 NAME = "circular_surface"
 
@@ -70,6 +71,8 @@ PARAMETERS = [
     *NOISE_PARAMETERS,
     Param("substeps", 1, "RK4 substeps per control period (contact mode ~41 rad/s: 1 is "
           "plenty at 1 kHz).", "integer", read_only=True),
+    max_contact_force_parameter(50.0, "5 x the task's force f_dm = 10 N (5.3; the thesis "
+                                "runs peak at 15.2 N on the first impact)."),
 ]
 
 

@@ -16,6 +16,11 @@ On the topic contract: joints q1..qn (prismatic, every mass is in /joint_states 
 recording; only q_1 is the thesis's measurement, and the scheme reads q_1 only). Commands are
 efforts, one per mass; C.1 has a force on the last mass only, which is what the scheme sends
 (the others are zero; they are applied if a user sends them).
+
+No contact: the chain touches nothing, so its wrench is always zero (the springs' forces are
+internal, u is the actuator's). The force reflex (``max_contact_force``) acts on that
+measured wrench like every plant's, i.e. never; the joints have no URDF velocity limits, so
+neither does the joint velocity reflex. The watchdog's safe stop still brakes the masses.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from cr_control.core.parameters import Param, ParameterError
-from cr_sim.plants.base import JointLimits, Measurement
+from cr_sim.plants.base import JointLimits, Measurement, max_contact_force_parameter
 from cr_sim.plants.lti import LTIPlant
 
 NAME = "cmmsd"
@@ -41,6 +46,9 @@ PARAMETERS = [
     Param("position_noise_std", 0.0, "Position measurement noise, std (m).", "nonnegative",
           read_only=True),
     Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True),
+    max_contact_force_parameter(10.0, "the chain has no contact and no task force (appendix "
+                                "C): it acts on the measured wrench, always 0, so it never "
+                                "trips; 10 N is a placeholder."),
 ]
 
 
@@ -101,11 +109,19 @@ class CMMSD(LTIPlant):
         self.joint_names = tuple(f"q{i + 1}" for i in range(n))
         super().__init__(A, B, x0, np.zeros(n))
         self._n = n
+        self.max_contact_force = float(values["max_contact_force"])
         self._noise = values["position_noise_std"]
         self._rng = np.random.default_rng(values["noise_seed"])
 
     def joint_limits(self) -> JointLimits:
         return JointLimits.unlimited(self._n)
+
+    def contact_force_magnitude(self) -> float:
+        """The measured wrench's force, always 0 (no contact; no draw from the noise)."""
+        return 0.0
+
+    def true_velocity(self) -> list[float]:
+        return self._x[1::2].tolist()
 
     def measurement(self) -> Measurement:
         q = self._x[0::2].copy()

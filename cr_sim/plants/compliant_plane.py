@@ -20,6 +20,7 @@ from cr_sim.plants.arm_on_surface import (
     arm_parameters,
     disturbance_parameters,
 )
+from cr_sim.plants.base import max_contact_force_parameter
 
 NAME = "compliant_plane"
 
@@ -43,6 +44,8 @@ PARAMETERS = [
     *NOISE_PARAMETERS,
     Param("substeps", 1, "RK4 substeps per control period (the contact is not stiff: 1 is "
           "accurate to ~1e-9 m at 1 kHz).", "integer", read_only=True),
+    max_contact_force_parameter(50.0, "~5 x the task's force: the ch. 3 contact settles at "
+                                "~10.6 N (its thesis runs peak at 11.2 N)."),
 ]
 
 

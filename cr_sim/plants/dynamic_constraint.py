@@ -20,6 +20,26 @@ On the topic contract: one prismatic joint ``delta`` along the surface normal (p
 delta, velocity delta'; effort = the end effector's servo force k (delta_c - delta)); the
 wrench carries f as its x component (x = the surface normal, into the constraint; f >= 0
 presses); the command is a position (delta_c). Cases 1/2/3: k_o = k_s = 20/50/80.
+
+Safe stop (the watchdog's and the reflexes' brakes, issue 20). A position-commanded end
+effector cannot be braked with torques; its safe stop retracts the command instead:
+
+    delta_c = r(t) - (K_d / k) delta'
+
+r moves from the held delta_c at ``retract_speed`` (the interface has no velocity limit of
+its own) to the contact-free position and stays there: the lowest of the zero-force
+equilibrium (``equilibrium(values, 0)``: delta = 0), the position where f = 0 for the
+constraint's state when braking begins (delta - f_raw / (k_o + k_s)) and the held command
+(never back toward the surface). The second term is the brakes' damping K_d
+(``brake_damping``, here N s/m) acting through the servo's stiffness k: the end effector's
+own loop is damped at zeta ~ 0.02 and the constraint at ~0.01, so a plain hold lets the
+pair ring (after the MRAC divergence trips the reflex at 5 N, held positions see the force
+come back at 12-40 N within 35 s; with the damping it peaks 1.1 % above the trip value
+0.15 s later - the end effector's momentum: a 20 kg end effector on a 10 N/m servo cannot
+stop within a period - and the end effector comes to rest at r). At rest delta_c = r: the
+position is held. "Contact-free" holds at rest: the thesis's constraint is bilateral (its
+states follow delta without contact) and its compliant layer keeps ringing (tau ~ 100 s),
+touching the retracted end effector with a decaying force below the force at the stop.
 """
 
 from __future__ import annotations
@@ -27,7 +47,7 @@ from __future__ import annotations
 import numpy as np
 
 from cr_control.core.parameters import Param
-from cr_sim.plants.base import JointLimits, Measurement
+from cr_sim.plants.base import JointLimits, Measurement, max_contact_force_parameter
 from cr_sim.plants.lti import LTIPlant
 
 NAME = "dynamic_constraint"
@@ -56,6 +76,13 @@ PARAMETERS = [
     Param("position_noise_std", 0.0, "Position (delta) measurement noise, std (m).",
           "nonnegative", read_only=True),
     Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True),
+    max_contact_force_parameter(5.0, "5 x the task's force f_d = 1 N (section 4.3; "
+                                "config/backstepping_force.yaml, mrac_force.yaml), 3.3 x the "
+                                "initial 1.5 N, the most the backstepping cases 1-3 reach."),
+    Param("retract_speed", 0.5, "Safe stop: speed (m/s) at which the command delta_c retracts "
+          "to the contact-free position (the position interface has no velocity limit of its "
+          "own); ~1.5 x the fastest end-effector motion of the thesis runs (0.33 m/s).",
+          "positive", read_only=True),
 ]
 
 
@@ -107,6 +134,9 @@ class DynamicConstraint(LTIPlant):
         self._noise = (values["position_noise_std"], values["force_noise_std"])
         self._rng = np.random.default_rng(values["noise_seed"])
         self._k = values["end_effector_stiffness"]
+        self.max_contact_force = float(values["max_contact_force"])
+        self.retract_speed = float(values["retract_speed"])
+        self._c_list = [float(c) for c in self.C]
 
     def raw_force(self) -> float:
         """f = E x + D delta, negative when the contact would pull (not clipped)."""
@@ -114,6 +144,32 @@ class DynamicConstraint(LTIPlant):
 
     def joint_limits(self) -> JointLimits:
         return JointLimits.unlimited(1)
+
+    def contact_force_magnitude(self) -> float:
+        """f (N), true: the raw force clipped at 0 as the thesis reports it (no noise)."""
+        f = sum(c * x for c, x in zip(self._c_list, self._x.tolist(), strict=True))
+        return f if f > 0.0 else 0.0
+
+    def true_velocity(self) -> list[float]:
+        return [float(self._x[1])]
+
+    def contact_free_position(self) -> np.ndarray:
+        """Where the safe stop retracts delta_c to (module docstring): the lowest of the
+        zero-force equilibrium, the position where f = 0 now and the held command."""
+        rest = float(equilibrium(self.values, 0.0)[0])
+        free_now = float(self._x[0]) - self.raw_force() / self._c_list[0]
+        return np.array([min(rest, free_now, float(self._held[0]))])
+
+    def safe_stop_command(self) -> np.ndarray:
+        """The retract (base class) plus the brakes' damping through the servo:
+        delta_c = r(t) - (K_d / k) delta' (module docstring)."""
+        command = super().safe_stop_command()
+        command[0] -= self.brake_damping / self._k * float(self._x[1])
+        return command
+
+    def describe_safe_stop(self) -> str:
+        return (super().describe_safe_stop() + f", damped by {self.brake_damping:g} N s/m "
+                "through the servo")
 
     def measurement(self) -> Measurement:
         x = self._x

@@ -73,7 +73,13 @@ from cr_sim.models.constrained_dynamics import (
     planar_mechanism,
 )
 from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS, arm_parameters
-from cr_sim.plants.base import ConstrainedPlant, JointLimits, Measurement, take_command
+from cr_sim.plants.base import (
+    ConstrainedPlant,
+    JointLimits,
+    Measurement,
+    max_contact_force_parameter,
+    take_command,
+)
 
 NAME = "flexible_joint_surface"
 LINK_JOINTS = ("joint1", "joint2")
@@ -113,6 +119,10 @@ PARAMETERS = [
           "thesis gives none).", "positive", read_only=True),
     *NOISE_PARAMETERS,
     Param("substeps", 1, "RK4 substeps per control period.", "integer", read_only=True),
+    max_contact_force_parameter(20.0, "|lambda| (either sign: the constraint is bilateral), "
+                                "10 x the task's lambda(0) = lambda_d = 2 N (6.3; the thesis "
+                                "runs peak at 3.3 N, robust adaptive, and 8.2 N, singular "
+                                "perturbation)."),
 ]
 
 
@@ -242,6 +252,7 @@ class FlexibleJointSurface(ConstrainedPlant):
                                      values["baumgarte_alpha"], values["baumgarte_beta"])
         self.flex = np.concatenate([ks, jm])
         self.substeps = int(values["substeps"])
+        self.max_contact_force = float(values["max_contact_force"])
         self._noise = (values["position_noise_std"], values["velocity_noise_std"],
                        values["force_noise_std"])
         self._noisy = any(self._noise)
@@ -307,6 +318,15 @@ class FlexibleJointSurface(ConstrainedPlant):
     def sensors(self) -> list[float]:
         return [float(v) for v in self._sensors]
 
+    def contact_force_magnitude(self) -> float:
+        """|lambda| (N), true."""
+        return abs(float(self._sensors[0]))
+
+    def true_velocity(self) -> list[float]:
+        """[q_l', q_m'] (joint_names order) without the measurement noise."""
+        x = self._x
+        return [float(x[2]), float(x[3]), float(x[6]), float(x[7])]
+
     @property
     def motor_acceleration(self) -> np.ndarray:
         """q_m'' now, with the held command (6.2)."""
@@ -342,6 +362,21 @@ class FlexibleJointSurface(ConstrainedPlant):
         limits = JointLimits.unlimited(2)
         limits.effort = np.full(2, self.effort_limit)
         return limits
+
+    def velocity_limits(self) -> list[tuple[int, float]]:
+        """The links' URDF velocity limits (the motors have none): the joint velocity reflex
+        watches q_l'."""
+        model = self.model
+        out = []
+        for i, name in enumerate(LINK_JOINTS):
+            limit = float(model.velocityLimit[model.joints[model.getJointId(name)].idx_v])
+            if 0.0 < limit < math.inf:
+                out.append((i, limit))
+        return out
+
+    def describe_safe_stop(self) -> str:
+        return (f"motor brakes: spring torque compensated, damping {self.brake_damping:g} N m s/rad, "
+                f"holding stiffness {self.brake_stiffness:g} N m/rad")
 
     def begin_safe_stop(self) -> None:
         """Engage the motor brakes: remember the measured motor positions."""

@@ -54,7 +54,7 @@ from cr_sim.models.constrained_dynamics import (
     planar_mechanism,
 )
 from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS, arm_parameters
-from cr_sim.plants.base import ConstrainedPlant, Measurement
+from cr_sim.plants.base import ConstrainedPlant, Measurement, max_contact_force_parameter
 
 NAME = "moving_object"
 URDF_NAME = "moving_object.urdf"
@@ -91,6 +91,10 @@ PARAMETERS = [
           "the static one G(q0) - J_Phi^T lambda_0 (default lambda_d = 2 N).", read_only=True),
     *NOISE_PARAMETERS,
     Param("substeps", 1, "RK4 substeps per control period.", "integer", read_only=True),
+    max_contact_force_parameter(20.0, "|lambda| (either sign: the constraint is bilateral), "
+                                "10 x the task's lambda_d = 2 N (2.106): the thesis runs start "
+                                "with |lambda| up to ~10 N for a few ms under the node's command "
+                                "limits."),
 ]
 
 
@@ -131,6 +135,7 @@ class MovingObjectPlant(ConstrainedPlant):
                                      np.array([*self.normal, 0.0]), 0.0,
                                      values["baumgarte_alpha"], values["baumgarte_beta"])
         self.substeps = int(values["substeps"])
+        self.max_contact_force = float(values["max_contact_force"])
         self._noise = (values["position_noise_std"], values["velocity_noise_std"],
                        values["force_noise_std"])
         self._noisy = any(self._noise)
@@ -186,6 +191,14 @@ class MovingObjectPlant(ConstrainedPlant):
 
     def sensors(self) -> list[float]:
         return [float(self._lam[0]), float(self._phi[0]), float(self._phi[1])]
+
+    def contact_force_magnitude(self) -> float:
+        """|lambda| (N), true."""
+        return abs(float(self._lam[0]))
+
+    def true_velocity(self) -> list[float]:
+        """q' without the measurement noise."""
+        return self._x[3:].tolist()
 
     def step(self, command: np.ndarray, dt: float) -> None:
         """Advance by dt with the efforts ``command`` held (a refused command keeps the last)."""
