@@ -32,6 +32,9 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.urdf")),
     ]
+    # the robots' wiping tasks (cr_session --robot): config/robots/<robot>/*.yaml
+    + [(f"share/{PACKAGE}/config/robots/{robot}", glob(f"config/robots/{robot}/*.yaml"))
+       for robot in sorted(p.rsplit("/", 1)[-1] for p in glob("config/robots/*"))]
     # Launch files, if any, where `ros2 launch cr_control ...` looks for them.
     + ([(f"share/{PACKAGE}/launch", glob("launch/*"))] if glob("launch/*") else []),
     install_requires=["setuptools"],

@@ -39,7 +39,7 @@ from cr_control.analysis.chapter5 import (
 )
 from cr_control.core.parameters import ParameterError
 from cr_control.schemes.blocks.fuzzy import mu_negative, mu_positive, rule_set_2_damping
-from cr_control.schemes.blocks.task_space import task_dynamics, task_state
+from cr_control.schemes.blocks.task_space import task_dynamics, task_frame
 from cr_control.schemes.registry import make_controller
 from cr_control.tools.offline import run, run_scheme
 from cr_sim.plants.registry import make_plant
@@ -140,14 +140,15 @@ def test_torque_is_5_7_with_the_shared_task_space_dynamics(scheme):
     """The kernel's tau equals J^T [M_r (r_d'' + (d e' + k e + f - f_d)/m) + C_r r' + G_r - f]
     with M_r, C_r, G_r from task_space.task_dynamics, at an arbitrary state and force."""
     ctrl = make_controller(scheme)
-    chain = ctrl.task.chain
+    chain = ctrl.model.chain
     q, v = np.array([0.5, -1.7]), np.array([0.3, -0.2])
     force = np.array([-3.0, 6.0, 0.0])
     t = 0.7
     out = ctrl.compute(t, 1e-3, q, v, force)
     st = dict(zip(ctrl.status_fields[1:], out.status, strict=True))
-    r, r_dot, J, J_inv, _ = task_state(chain, q, v)
-    M_r, C_r, G_r = task_dynamics(chain, q, v, J_inv)
+    frame = task_frame(chain, ctrl.model.task, 100.0, q, v)
+    r, r_dot, J = frame.r, frame.r_dot, frame.J
+    M_r, C_r, G_r = task_dynamics(chain, frame)
     r_d = np.array([0.8 - 0.3 * math.sin(t), -0.4 + 0.3 * math.cos(t)])
     v_d = np.array([-0.3 * math.cos(t), -0.3 * math.sin(t)])
     a_d = np.array([0.3 * math.sin(t), -0.3 * math.cos(t)])

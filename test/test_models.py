@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from cr_control.models.arm_model import LinkParameters, TwoLinkArm, closed_form_dynamics
-from cr_control.schemes.blocks.task_space import ArmTaskSpace, inverse_2x2
+from cr_control.schemes.blocks.task_space import task_dynamics, task_frame, task_model
+from cr_control.schemes.registry import controller_class
 from cr_sim.models.surfaces import circle, contact_force, plane
 from cr_sim.plants.compliant_plane import PARAMETERS
 from cr_sim.plants.registry import make_plant
@@ -48,20 +49,19 @@ def test_mass_matrix_properties(arm, q, v):
 
 @pytest.mark.parametrize("q,v", SAMPLES[:5])
 def test_task_space_model_reproduces_joint_dynamics(arm, q, v):
-    """M_r r'' + C_r r' + G_r = J^-T tau + f (3.2) for the accelerations of (3.1)."""
-    task = ArmTaskSpace({"model_link_length": [0.3, 0.3], "model_link_com": [0.15, 0.15],
-                         "model_link_mass": [0.1, 0.1], "model_link_inertia": [0.3, 0.3],
-                         "model_gravity": 9.8, "reference_offset": np.zeros(2),
-                         "reference_amplitude": np.zeros(2), "reference_phase": np.zeros(2),
-                         "reference_frequency": 0.0})
+    """M_r r'' + C_r r' + G_r = J^-T tau + f (3.2) for the accelerations of (3.1): the generic
+    task space (any URDF arm) on the thesis's 2-link arm."""
+    cls = controller_class("adaptive_impedance")
+    model = task_model(cls.robot_values(None))
     if abs(np.linalg.det(arm.jacobian(q))) < 1e-3:
         pytest.skip("near a singularity")
     tau, f = np.array([0.7, -0.3]), np.array([2.0, -1.0])
-    ts = task.state(q, v)
-    qdd = arm.forward_dynamics(q, v, tau + ts.J.T @ f)
-    r_dd = ts.J @ qdd + ts.jdot_v
-    M_r, C_r, G_r = task.dynamics(q, v, ts)
-    residual = M_r @ r_dd + C_r @ ts.r_dot + G_r - inverse_2x2(ts.J).T @ tau - f
+    frame = task_frame(model.chain, model.task, 1e12, q, v)   # no singularity damping
+    assert np.allclose(frame.J, arm.jacobian(q), atol=1e-12) and frame.damping == 0.0
+    qdd = arm.forward_dynamics(q, v, tau + frame.J.T @ f)
+    r_dd = frame.J @ qdd + frame.J_dot @ v
+    M_r, C_r, G_r = task_dynamics(model.chain, frame)
+    residual = M_r @ r_dd + C_r @ frame.r_dot + G_r - np.linalg.inv(frame.J).T @ tau - f
     assert np.abs(residual).max() < 1e-9
     assert np.allclose(M_r, M_r.T) and np.linalg.eigvalsh(M_r).min() > 0
 

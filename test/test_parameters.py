@@ -9,7 +9,7 @@ import yaml
 from cr_control.core.parameters import Param, ParameterError, resolve, validate
 from cr_control.core.paths import config_file
 from cr_control.schemes.registry import SCHEMES, controller_class
-from cr_control.tools.config_files import params_yaml, plant_yaml
+from cr_control.tools.config_files import params_yaml, plant_yaml, robot_files
 
 GAIN = Param("Q", [5.0, 5.0], "a positive definite gain", "spd", 2)
 NEG = Param("D", [-2.0, -2.0], "a negative definite matrix", "nd", 2)
@@ -59,6 +59,12 @@ def test_shipped_controller_config_is_the_thesis_defaults(scheme):
     for param in controller_class(scheme).parameters():
         assert values[param.name] == param.ros_default
         assert type(values[param.name]) is type(param.ros_default)
+
+
+@pytest.mark.parametrize("name", sorted(robot_files()))
+def test_shipped_robot_configs_are_the_generated_wiping_task(name):
+    """config/robots/<robot>/*.yaml (cr_session --robot) are what the generator writes."""
+    assert config_file(name).read_text() == robot_files()[name]
 
 
 def test_shipped_plant_config_is_the_defaults():

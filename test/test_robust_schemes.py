@@ -20,10 +20,11 @@ import pytest
 import yaml
 
 from cr_control.core.parameters import resolve
+from cr_control.models import spatial_chain
 from cr_control.models.arm_model import TwoLinkArm
-from cr_control.models.planar_chain import HEADER, PER_LINK
+from cr_control.models.spatial_chain import HEADER, INERTIA, MASS, PER_JOINT
 from cr_control.schemes.blocks.sliding_impedance import SlidingCompensator, boundary_layer_sign
-from cr_control.schemes.blocks.task_space import ArmTaskSpace, inverse_2x2
+from cr_control.schemes.impedance import nn_adaptive_impedance
 from cr_control.schemes.impedance.robust_adaptive_impedance import RobustAdaptiveImpedanceController
 from cr_control.schemes.registry import SCHEMES, controller_class, make_controller
 from cr_control.tools.config_files import params_yaml
@@ -106,7 +107,7 @@ def _compensator_residual(sign: float, seed: int) -> float:
     assert np.allclose(a_eq - a_d, values["K_1"] @ e_dot + values["K_2"] @ comp.z_dot)  # 3.50
     lhs = e_ddot + adaptation.A_hat @ e_dot + adaptation.B_hat @ e - adaptation.c_hat
     K2 = values["K_2"]
-    rhs = s_dot - K2 @ values["D"] @ inverse_2x2(K2) @ s
+    rhs = s_dot - K2 @ values["D"] @ np.linalg.inv(K2) @ s
     return float(np.abs(lhs - rhs).max())
 
 
@@ -282,12 +283,13 @@ _MODEL_FUNCTIONS = {
                 "nonLinearEffects", "computeAllTerms", "computeMinverse"),
     TwoLinkArm: ("mass_matrix", "nonlinear_effects", "gravity", "coriolis_matrix",
                  "forward_dynamics"),
-    ArmTaskSpace: ("dynamics", "torque_for_acceleration"),
+    spatial_chain: ("mass_matrix", "rnea", "coriolis_product", "tip_dynamics_into"),
+    nn_adaptive_impedance: ("true_norms",),
 }
 
 
 def _model_calls_during_control(monkeypatch, scheme: str, overrides: dict) -> int:
-    """Calls of any dynamics-model function made inside controller.step in 0.3 s."""
+    """Python-level calls of any dynamics-model function made inside controller.step in 0.3 s."""
     calls, inside = [0], [False]
 
     def spy(original):
@@ -310,27 +312,38 @@ def _model_calls_during_control(monkeypatch, scheme: str, overrides: dict) -> in
     return calls[0]
 
 
+def _inertial(chain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(masses, rotational inertias (6 per joint)) of a packed spatial chain."""
+    n = int(chain[0])
+    at = [HEADER + PER_JOINT * i for i in range(n)]
+    return (np.array([chain[k + MASS] for k in at]),
+            np.array([chain[k + INERTIA:k + INERTIA + 6] for k in at]))
+
+
 def test_nn_controller_uses_no_dynamics_model(monkeypatch):
-    """No call of M, C, G (Pinocchio, the arm model or the task-space model) from the NN
-    control law; the same spy does see the NN's optional true norms. The compiled control
-    kernel gets the geometry only: its chain has no masses, inertias or gravity, while the
-    robust scheme's carries its (wrong) inertial model."""
+    """No Python-level call of M, C, G (Pinocchio, the arm model, the compiled chain) from the
+    NN control law; the same spy does see the NN's optional true norms. The compiled control
+    kernel gets the geometry only: its chain has no masses, inertias or gravity, and its task
+    is model-free (M = I in the projectors), while the robust scheme's chain carries its
+    (wrong) inertial model."""
     assert _model_calls_during_control(monkeypatch, "nn_adaptive_impedance",
                                        {"publish_true_norms": False}) == 0
     assert _model_calls_during_control(monkeypatch, "nn_adaptive_impedance", {}) > 0
     nn, robust = make_controller("nn_adaptive_impedance"), make_controller("robust_adaptive_impedance")
-    inertial = slice(HEADER + 4, None, PER_LINK)
-    assert np.all(nn.kinematic_chain[1:3] == 0) and np.all(nn.kinematic_chain[inertial] == 0)
-    assert np.all(nn.kinematic_chain[inertial.start + 1::PER_LINK] == 0)
-    assert np.allclose(robust.task.chain[inertial], [0.05, 0.05])
-    assert np.allclose(nn.kinematic_chain[HEADER:HEADER + 2], robust.task.chain[HEADER:HEADER + 2])
+    masses, inertias = _inertial(nn.model.chain)
+    assert np.all(nn.model.chain[1:HEADER] == 0) and np.all(masses == 0) and np.all(inertias == 0)
+    assert nn.model.task[9] == 1.0 and robust.model.task[9] == 0.0
+    masses, inertias = _inertial(robust.model.chain)
+    assert np.allclose(masses, [0.05, 0.05]) and np.allclose(inertias[:, [0, 3, 5]], 0.2)
+    geometry = slice(HEADER, HEADER + 16)
+    assert np.array_equal(nn.model.chain[geometry], robust.model.chain[geometry])
 
 
 def test_nn_commands_do_not_depend_on_the_inertial_model():
     """Absurd inertial model parameters change nothing but the published true norms."""
     nominal = run_scheme("nn_adaptive_impedance", 1.0)
     absurd = run_scheme("nn_adaptive_impedance", 1.0, {
-        "model_link_mass": [5.0, 5.0], "model_link_inertia": [3.0, 3.0], "model_gravity": 0.0,
+        "model_mass_scale": 50.0, "model_inertia_scale": 10.0, "gravity": [0.0, 0.0, 0.0],
         "publish_true_norms": False})
     assert np.array_equal(nominal.command, absurd.command)
     for name in ("M_r_hat_norm", "C_r_hat_norm", "G_r_hat_norm", "s_x", "c_hat_y"):
@@ -358,7 +371,7 @@ def test_scheme_registered_with_params_file_of_its_defaults(scheme):
 
 def test_robust_controller_model_is_the_wrong_one_of_section_3_5_2():
     values = resolve(RobustAdaptiveImpedanceController.parameters())
-    assert list(values["model_link_inertia"]) == [0.2, 0.2]
-    assert list(values["model_link_mass"]) == [0.05, 0.05]
+    assert values["model_mass_scale"] == 0.5
+    assert values["model_inertia_scale"] == pytest.approx(0.2 / 0.3, rel=1e-15)
     assert np.allclose(np.diag(values["D"]), [-2.0, -2.0])
     assert values["boundary_layer"] == DELTA

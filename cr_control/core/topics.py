@@ -23,6 +23,10 @@ RECORDER_READY = "/recorder/ready"
 
 REFERENCE_SUFFIX = "reference"
 STATUS_SUFFIX = "status"
+#: Inputs of the task-space controllers (geometry_msgs/PoseStamped, WrenchStamped), in the
+#: controller's base_link frame: a pose to move to and a contact force to hold.
+TARGET_POSE_SUFFIX = "target_pose"
+TARGET_WRENCH_SUFFIX = "target_wrench"
 
 #: Depth of the RELIABLE/KEEP_LAST queues on the 1 kHz topics (depth 1 dropped
 #: messages across processes on these machines; 10 lost none).
@@ -80,7 +84,9 @@ def labelled_writer(fields: Sequence[str]) -> cdr.Writer:
 #: ``commands_refused`` (run totals), ``command_publishers`` / ``state_publishers``
 #: (publishers seen on /joint_commands and /joint_states, the plant included; more than
 #: one each means another participant is on the loop), ``window_max_missed_run`` (longest
-#: run of consecutive ticks without a new command in the window).
+#: run of consecutive ticks without a new command in the window); issue 20:
+#: ``safe_stop_reason`` (why the safe stop is engaged: 0 none, 1 watchdog, 2 contact force
+#: reflex, 3 joint velocity reflex; ``safe_stop`` is 1 for each of them).
 PLANT_TIMING_FIELDS = [
     "stamp",
     "rate_hz",
@@ -103,6 +109,7 @@ PLANT_TIMING_FIELDS = [
     "command_publishers",
     "state_publishers",
     "window_max_missed_run",
+    "safe_stop_reason",
 ]
 
 #: Fields every controller publishes on its reference topic (task space, SI units).

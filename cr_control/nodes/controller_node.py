@@ -38,20 +38,18 @@ import sys
 import time
 
 import numpy as np
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import GetParameters
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
 from cr_control.core import cdr, topics
-from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, Param
 from cr_control.nodes.lockstep import ReaderPacer
-from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
+from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS, TARGET_QOS
 from cr_control.nodes.raw_messages import (
     ArrayReader,
     JointStateFields,
@@ -85,27 +83,14 @@ def wait_for_acks(node: Node, timeout_s: float = 2.0) -> None:
             publisher.wait_for_all_acked(Duration(seconds=timeout_s))
 
 
-def type_empty_lists(node: Node, specs: list[Param]) -> None:
-    """Give vector and matrix parameters set to ``[]`` in a params file an (empty) double
-    array: rcl's YAML parser cannot type an empty list and hands rclpy NOT_SET, which
-    ``declare`` would refuse (``theta_hat_0: []`` of cmmsd_backstepping, as the shipped
-    params file and every session's params.yaml write it)."""
-    overrides = node._parameter_overrides  # noqa: SLF001 - rclpy 7.1.6 has no public accessor
-    for spec in specs:
-        given = overrides.get(spec.name)
-        if (given is not None and given.type_ == Parameter.Type.NOT_SET
-                and spec.kind in VECTOR_KINDS + MATRIX_KINDS):
-            overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE_ARRAY, [])
-
-
 class ControllerNode(Node):
     """Runs the control scheme ``scheme`` on the topic contract of DESIGN.md."""
 
     def __init__(self, scheme: str, **kwargs):
         super().__init__(scheme, **kwargs)
         cls = controller_class(scheme)
-        specs = cls.parameters()
-        type_empty_lists(self, specs)
+        given = {name: p.value for name, p in self._parameter_overrides.items()}  # noqa: SLF001
+        specs = cls.parameters(given)      # a task-space scheme sizes its gains to the robot
         values = declare(self, specs)
         if values["diagnostics_every"] < 1:
             raise ParameterError("parameter diagnostics_every must be >= 1")
@@ -176,6 +161,12 @@ class ControllerNode(Node):
         self.create_subscription(JointState, topics.JOINT_STATES,
                                  quiet_on_shutdown(self, self._on_joint_state), CONTROL_QOS,
                                  raw=True)
+        if hasattr(self.controller, "set_target_pose"):    # task-space schemes: live targets
+            self._base_link = self.controller.values["base_link"]
+            self.create_subscription(PoseStamped, f"~/{topics.TARGET_POSE_SUFFIX}",
+                                     quiet_on_shutdown(self, self._on_target_pose), TARGET_QOS)
+            self.create_subscription(WrenchStamped, f"~/{topics.TARGET_WRENCH_SUFFIX}",
+                                     quiet_on_shutdown(self, self._on_target_wrench), TARGET_QOS)
         self.get_logger().info(
             f"{scheme}: {len(specs)} parameters, commanding {self.joint_names} "
             f"({self.controller.command_interface})")
@@ -273,6 +264,38 @@ class ControllerNode(Node):
         if index is not None and len(values) > max(index):
             self.controller.plant_sensors[:] = [values[i] for i in index]
             self._sensors_seen = True
+
+    # -- targets (task-space schemes) ----------------------------------------------------
+    def _target_usable(self, topic: str, frame_id: str, values: list[float]) -> bool:
+        """A target is used if it is in the base frame (or names none) and finite."""
+        if frame_id not in ("", self._base_link):
+            self.get_logger().warn(f"~/{topic} in frame {frame_id!r} ignored: targets must be in "
+                                   f"{self._base_link!r} (no tf here)", throttle_duration_sec=5.0)
+            return False
+        if not all(np.isfinite(values)):
+            self.get_logger().warn(f"~/{topic} with a non-finite value ignored",
+                                   throttle_duration_sec=5.0)
+            return False
+        return True
+
+    def _on_target_pose(self, msg: PoseStamped) -> None:
+        p, o = msg.pose.position, msg.pose.orientation
+        position, quaternion = [p.x, p.y, p.z], [o.w, o.x, o.y, o.z]
+        if not self._target_usable(topics.TARGET_POSE_SUFFIX, msg.header.frame_id,
+                                   position + quaternion):
+            return
+        if not np.linalg.norm(quaternion) > 0.0:
+            self.get_logger().warn("~/target_pose with a zero quaternion ignored (an "
+                                   "orientation of [0, 0, 0, 1] means none)",
+                                   throttle_duration_sec=5.0)
+            return
+        self.controller.set_target_pose(np.array(position), np.array(quaternion))
+
+    def _on_target_wrench(self, msg: WrenchStamped) -> None:
+        f = msg.wrench.force
+        force = [f.x, f.y, f.z]
+        if self._target_usable(topics.TARGET_WRENCH_SUFFIX, msg.header.frame_id, force):
+            self.controller.set_target_wrench(np.array(force))
 
     def _joint_order(self, names: tuple[str, ...]) -> list[int] | None:
         """Indices of our state joints in a JointState's name list (None if any is missing)."""

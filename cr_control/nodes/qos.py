@@ -17,3 +17,7 @@ PUBLISH_QOS = QoSProfile(depth=topics.PUBLISH_DEPTH, reliability=ReliabilityPoli
 #: The recorder's ready flag: latched, so a plant that starts later still sees it.
 READY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: Targets (~/target_pose, ~/target_wrench): the latest one counts, as with any command
+#: stream; RELIABLE so a single target sent once is not lost.
+TARGET_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)

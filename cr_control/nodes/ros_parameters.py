@@ -37,6 +37,9 @@ _ROS_TYPES = {
     "string_list": ParameterType.PARAMETER_STRING_ARRAY,
 }
 
+#: ROS types of list parameters (an empty one needs its type spelt out for rclpy).
+_LISTS = (ParameterType.PARAMETER_DOUBLE_ARRAY, ParameterType.PARAMETER_STRING_ARRAY)
+
 #: Parameters every rclpy node declares by itself (and ``qos_overrides.*`` ones).
 BUILTIN_PARAMETERS = ("use_sim_time", "start_type_description_service")
 _BUILTIN_PREFIX = "qos_overrides."
@@ -97,10 +100,20 @@ def declare(node: Node, specs: Sequence[Param]) -> dict[str, Any]:
     overrides = node._parameter_overrides  # noqa: SLF001 - see refuse_undeclared
     for param in specs:
         ros_type = _ROS_TYPES[param.kind]
+        given = overrides.get(param.name)
+        # rclpy types an empty list as a byte array whatever was declared (rclpy 7.1.6), and
+        # rcl's YAML parser hands it NOT_SET (``posture: []`` in a params file, as every
+        # session's params.yaml writes it): a list parameter that is, or is given, empty is
+        # declared with dynamic typing (``validate`` still refuses anything but numbers).
+        empty_default = isinstance(param.ros_default, list) and not param.ros_default
+        empty_given = given is not None and (given.type_ == Parameter.Type.NOT_SET or (
+            isinstance(given.value, list | tuple) and len(given.value) == 0))
+        dynamic = ros_type in _LISTS and (empty_default or empty_given)
+        if dynamic and given is not None and given.type_ == Parameter.Type.NOT_SET:
+            overrides[param.name] = given = Parameter(param.name, value=[])
         descriptor = ParameterDescriptor(
             name=param.name, type=ros_type, description=_description(param),
-            read_only=param.read_only)
-        given = overrides.get(param.name)
+            read_only=param.read_only, dynamic_typing=dynamic)
         if given is not None and (fitted := coerce(given.value, ros_type)) is not given.value:
             overrides[param.name] = Parameter(param.name, value=fitted)
         try:
@@ -109,6 +122,7 @@ def declare(node: Node, specs: Sequence[Param]) -> dict[str, Any]:
             got = overrides[param.name]
             raise ParameterError(f"parameter {param.name} must be a {type_name(ros_type)}, got "
                                  f"a {type_name(got.type_.value)} ({got.value!r})") from None
+        value = list(value) if dynamic and value is not None else value
         ok, reason, converted = validate(param, value)
         if not ok:
             raise ParameterError(f"parameter {param.name}: {reason}")

@@ -125,6 +125,17 @@ def accept_cycle(n, max_effort, internal, good, command, status, command_slots):
     return ACCEPTED
 
 
+#: Reference values of the 2-D schemes (topics.REFERENCE_FIELDS without the stamp).
+N_REFERENCE = len(REFERENCE_FIELDS) - 1
+
+
+@njit(cache=True, error_model="numpy")
+def split_output(out, n):
+    """(command, reference, status) views of a 2-D scheme's output vector
+    [command (n) | reference (N_REFERENCE) | status]."""
+    return out[:n], out[n:n + N_REFERENCE], out[n + N_REFERENCE:]
+
+
 class KernelOutput:
     """The output vector a scheme's cycle kernel fills, from two preallocated ones: the
     kernel writes the spare while the other keeps the last accepted cycle (a held
@@ -191,14 +202,11 @@ class Controller(ABC):
     def __init__(self, values: dict[str, Any]):
         self.values = dict(values)
         self.n_joints = len(self.values["joint_names"])
-        #: Joints whose states the law reads, in the order of q and q' given to compute():
-        #: the ``state_joint_names`` parameter where a scheme has one (flexible joints: link
-        #: and motor joints), else the commanded joints.
-        self.state_joint_names = list(self.values.get("state_joint_names")
-                                      or self.values["joint_names"])
+        #: Joints whose states the law reads, in the order of q and q' given to compute().
+        self.state_joint_names = self.read_joint_names()
         self.n_state = len(self.state_joint_names)
         self.plant_sensors = np.full(len(self.plant_sensor_fields), np.nan)
-        self.status_fields = STATUS_FIELDS + list(self.extra_status_fields)
+        self.status_fields = self.status_field_names()
         self._i_compute = self.status_fields.index("compute_time_us") - 1
         self._i_held = self.status_fields.index("held") - 1
         names = self.command_status_fields or [f"tau_{i + 1}" for i in range(self.n_joints)]
@@ -220,13 +228,23 @@ class Controller(ABC):
         self._warned_at = -math.inf
         self._unwarned = 0
 
+    def read_joint_names(self) -> list[str]:
+        """Joints whose states the law reads: the ``state_joint_names`` parameter where a
+        scheme has one (flexible joints: link and motor joints), else the commanded joints."""
+        return list(self.values.get("state_joint_names") or self.values["joint_names"])
+
+    def status_field_names(self) -> list[str]:
+        """Fields of the status (stamp first): topics.STATUS_FIELDS and the scheme's own."""
+        return STATUS_FIELDS + list(self.extra_status_fields)
+
     #: The scheme's own ``joint_names`` parameter (its plant's joints as the default), in
     #: place of the common one (the 2-link arm's); None keeps the common one.
     JOINT_NAMES_PARAMETER: Param | None = None
 
     @classmethod
-    def parameters(cls) -> list[Param]:
-        """Every parameter of this scheme: common ones first."""
+    def parameters(cls, given: dict[str, Any] | None = None) -> list[Param]:
+        """Every parameter of this scheme, common ones first. ``given``: values the node or
+        session was given (schemes whose parameters depend on the robot read it)."""
         own = cls.JOINT_NAMES_PARAMETER
         common = COMMON_PARAMETERS if own is None else [
             own if p.name == "joint_names" else p for p in COMMON_PARAMETERS]

@@ -46,7 +46,7 @@ def controller_class(scheme: str) -> type[Controller]:
 def make_controller(scheme: str, overrides: dict[str, Any] | None = None) -> Controller:
     """A controller of ``scheme`` with thesis defaults and ``overrides`` (ROS-style values)."""
     cls = controller_class(scheme)
-    return cls(resolve(cls.parameters(), overrides))
+    return cls(resolve(cls.parameters(overrides), overrides))
 
 
 #: Plant parameters a scheme's thesis runs set beyond the scenario's defaults (applied by

@@ -13,6 +13,7 @@ import numpy as np
 
 from cr_control.schemes.controller import Controller
 from cr_control.schemes.registry import default_plant_overrides, default_scenario, make_controller
+from cr_control.tools import robots
 from cr_sim.plants.base import Plant
 from cr_sim.plants.registry import SCENARIOS, make_plant
 
@@ -43,9 +44,19 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
     steps = int(round(duration / period))
     n = len(plant.joint_names)
     n_command = len(plant.command_joints)
-    if controller.n_state != n:
-        raise ValueError(f"{controller.scheme} reads {controller.n_state} joints "
-                         f"{controller.state_joint_names}, the plant gives {list(plant.joint_names)}")
+    # joints by name, as the nodes match them: the controller reads its own joints of the
+    # plant's state (a plant may publish more, e.g. locked fingers) and commands the plant's
+    # commanded joints in its own order
+    missing = [j for j in controller.state_joint_names if j not in plant.joint_names]
+    commanded = list(controller.values["joint_names"])
+    if missing or sorted(commanded) != sorted(plant.command_joints):
+        raise ValueError(f"{controller.scheme} reads {controller.state_joint_names} and commands "
+                         f"{commanded}; the plant gives {list(plant.joint_names)} and takes "
+                         f"{list(plant.command_joints)}")
+    read = [list(plant.joint_names).index(j) for j in controller.state_joint_names]
+    read = None if read == list(range(n)) else read
+    to_plant = [commanded.index(j) for j in plant.command_joints]
+    to_plant = None if to_plant == list(range(n_command)) else to_plant
     sensor_index = None
     if controller.plant_sensor_fields:
         fields = list(plant.sensor_fields)
@@ -69,13 +80,14 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         # lockstep over ROS then reproduces this loop bit for bit, even where the closed
         # loop amplifies round-off (fjr_robust_adaptive's boundary layer at 1 kHz)
         sec, nanosec = divmod(round(m.time * 1e9), 1_000_000_000)
-        out = controller.step(sec + nanosec * 1e-9, m.position, m.velocity, m.force)
-        plant.step(out.command, period)
+        q, v = (m.position, m.velocity) if read is None else (m.position[read], m.velocity[read])
+        out = controller.step(sec + nanosec * 1e-9, q, v, m.force)
+        plant.step(out.command if to_plant is None else out.command[to_plant], period)
         rows["time"][k] = m.time
         rows["position"][k] = m.position
         rows["velocity"][k] = m.velocity
         rows["force"][k] = m.force
-        rows["command"][k] = out.command
+        rows["command"][k] = out.command if to_plant is None else out.command[to_plant]
         rows["reference"][k] = out.reference
         rows["status"][k] = out.status
     return OfflineRun(**rows, reference_fields=list(controller.reference_fields),
@@ -92,8 +104,19 @@ def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None)
 
 
 def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
-               plant_overrides: dict[str, Any] | None = None, period: float = 1e-3) -> OfflineRun:
-    """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides."""
-    scenario = default_scenario(scheme)
-    plant = make_plant(scenario, scheme_plant_overrides(scheme, plant_overrides))
-    return run(make_controller(scheme, controller_overrides), plant, duration, period)
+               plant_overrides: dict[str, Any] | None = None, period: float = 1e-3,
+               robot: str | None = None) -> OfflineRun:
+    """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
+    on ``robot``'s wiping task (the parameters of config/robots/<robot>/, see
+    :mod:`cr_control.tools.robots`)."""
+    if robot is None:
+        plant = make_plant(default_scenario(scheme), scheme_plant_overrides(scheme, plant_overrides))
+        controller = make_controller(scheme, controller_overrides)
+    else:
+        r = robots.robot(robot)
+        plant_values = {k: v for k, v in robots.plant_values(r).items() if k != "scenario"}
+        plant = make_plant(robots.plant_values(r)["scenario"], {**plant_values,
+                                                                **(plant_overrides or {})})
+        controller = make_controller(scheme, {**robots.controller_values(r, scheme),
+                                              **(controller_overrides or {})})
+    return run(controller, plant, duration, period)

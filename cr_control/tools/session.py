@@ -6,6 +6,7 @@ simulated seconds, stops everything cleanly, then prints the analysis and writes
 plots. Every process runs with localhost-only discovery and the session's own domain id.
 
     cr_session --scheme adaptive_impedance --duration 10
+    cr_session --robot panda --scheme fuzzy_unidirectional
     cr_session --mode lockstep -p adaptive_impedance.Q_c=[50.0,50.0] --out /tmp/runs
 """
 
@@ -45,6 +46,7 @@ from cr_control.schemes.registry import (
     default_plant_overrides,
     default_scenario,
 )
+from cr_control.tools.robots import ROBOTS, TASK_SPACE_SCHEMES
 
 STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 15.0
@@ -68,6 +70,7 @@ class SessionConfig:
     overrides: list[str] = field(default_factory=list)
     domain_id: int | None = None
     name: str | None = None
+    robot: str | None = None
 
 
 @dataclass
@@ -150,7 +153,10 @@ def node_specs(node: str, params: dict[str, Any], scheme: str) -> list[Param] | 
         if scenario not in SCENARIOS:
             raise SessionError(f"plant.scenario {scenario!r} is not one of {sorted(SCENARIOS)}")
         return plant_parameters(scenario)
-    return controller_class(scheme).parameters()
+    try:
+        return controller_class(scheme).parameters(params)
+    except ParameterError as exc:
+        raise SessionError(f"{node}: {exc}") from None
 
 
 #: Real-time sessions publish ~/reference and ~/status every this many cycles.
@@ -163,10 +169,15 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
     SessionError naming the file, node or parameter for anything a node would not take:
     unreadable or malformed files, unknown nodes, unknown parameter names, refused values.
     """
-    scenario = default_scenario(cfg.scheme)
-    params = _load_params_file(config_file(f"{cfg.scheme}.yaml"))
-    params.update(_load_params_file(config_file(f"plant_{scenario}.yaml")))
-    params["plant"].update(default_plant_overrides(cfg.scheme))
+    if cfg.robot is None:
+        scenario = default_scenario(cfg.scheme)
+        params = _load_params_file(config_file(f"{cfg.scheme}.yaml"))
+        params.update(_load_params_file(config_file(f"plant_{scenario}.yaml")))
+        params["plant"].update(default_plant_overrides(cfg.scheme))
+    else:                               # the robot's wiping task (cr_control.tools.robots)
+        params = _load_params_file(config_file(f"robots/{cfg.robot}/{cfg.scheme}.yaml"))
+        params.update(_load_params_file(config_file(f"robots/{cfg.robot}/plant.yaml")))
+        scenario = params["plant"]["scenario"]
     params["plant"].update(scenario=scenario, mode=cfg.mode, duration=float(cfg.duration),
                            wait_for_recorder=cfg.record)
     params[cfg.scheme]["lockstep"] = cfg.mode == "lockstep"
@@ -320,6 +331,11 @@ class Session:
     def __init__(self, cfg: SessionConfig, progress=print):
         if cfg.scheme not in SCHEMES:
             raise SessionError(f"unknown scheme {cfg.scheme!r}; known: {sorted(SCHEMES)}")
+        if cfg.robot is not None and cfg.robot not in ROBOTS:
+            raise SessionError(f"unknown robot {cfg.robot!r}; known: {sorted(ROBOTS)}")
+        if cfg.robot is not None and cfg.scheme not in TASK_SPACE_SCHEMES:
+            raise SessionError(f"{cfg.scheme} runs on its thesis plant only; on a robot: "
+                               f"{', '.join(TASK_SPACE_SCHEMES)}")
         if cfg.mode not in ("realtime", "lockstep"):
             raise SessionError(f"mode must be realtime or lockstep, not {cfg.mode!r}")
         if not 0 < cfg.duration < math.inf:
@@ -327,7 +343,9 @@ class Session:
         self.cfg = cfg
         self.progress = progress
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-        name = cfg.name or f"{stamp}-{cfg.scheme}-{cfg.mode}{'-composed' if cfg.composed else ''}"
+        robot = f"-{cfg.robot}" if cfg.robot else ""
+        name = cfg.name or (f"{stamp}{robot}-{cfg.scheme}-{cfg.mode}"
+                            f"{'-composed' if cfg.composed else ''}")
         _check_out(Path(cfg.out))
         self.dir = Path(cfg.out) / name
         self.logs = self.dir / "logs"
@@ -444,6 +462,9 @@ def build_parser() -> argparse.ArgumentParser:
     """Command-line interface of cr_session."""
     p = argparse.ArgumentParser(prog="cr_session", description=__doc__.split("\n\n")[0])
     p.add_argument("--scheme", default="adaptive_impedance", choices=sorted(SCHEMES))
+    p.add_argument("--robot", choices=sorted(ROBOTS),
+                   help="run on this robot's URDF, wiping a table (task-space schemes; "
+                        "default: the scheme's thesis plant)")
     p.add_argument("--duration", type=float, default=10.0, help="simulated seconds (default 10)")
     p.add_argument("--mode", default="realtime", choices=["realtime", "lockstep"])
     p.add_argument("--composed", action="store_true", help="plant and controller in one process")
@@ -467,7 +488,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = SessionConfig(scheme=args.scheme, duration=args.duration, mode=args.mode,
                         composed=args.composed, record=not args.no_record, out=args.out,
                         params_files=args.params_file, overrides=args.overrides,
-                        domain_id=args.domain_id, name=args.name)
+                        domain_id=args.domain_id, name=args.name, robot=args.robot)
     try:
         session = Session(cfg)
         result = session.run()

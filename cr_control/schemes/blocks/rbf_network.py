@@ -23,6 +23,35 @@ def grid_centres(low: np.ndarray, high: np.ndarray, per_dim: int) -> np.ndarray:
         np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low)))
 
 
+def halton_centres(low: np.ndarray, high: np.ndarray, count: int) -> np.ndarray:
+    """``count`` centres spread over the box [low, high] by the Halton sequence (bases the
+    first primes, index from 1): an even, deterministic cover where a grid would need
+    per_dim^dim nodes (a 7-joint arm's 14-dimensional (q, q') input)."""
+    primes = [2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71]
+    dim = len(low)
+    if dim > len(primes):
+        raise ValueError(f"halton_centres supports up to {len(primes)} dimensions, got {dim}")
+    points = np.empty((count, dim))
+    for j in range(dim):
+        base = primes[j]
+        for i in range(count):
+            k, f, x = i + 1, 1.0, 0.0
+            while k > 0:
+                f /= base
+                x += f * (k % base)
+                k //= base
+            points[i, j] = x
+    return np.ascontiguousarray(np.asarray(low) + points * (np.asarray(high) - np.asarray(low)))
+
+
+def centres(low: np.ndarray, high: np.ndarray, per_dim: int, max_nodes: int) -> np.ndarray:
+    """A grid of per_dim centres per dimension if it has at most ``max_nodes`` nodes, else
+    ``max_nodes`` Halton centres over the same box."""
+    if per_dim ** len(low) <= max_nodes:
+        return grid_centres(low, high, per_dim)
+    return halton_centres(low, high, max_nodes)
+
+
 @njit(cache=True, error_model="numpy")
 def activations(centres, inv_variance, x):
     """xi_i(x) = exp(-|x - mu_i|^2 / sigma^2) (3.69) for every centre mu_i (rows)."""

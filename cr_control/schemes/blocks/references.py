@@ -1,4 +1,38 @@
-"""Desired motions and forces of the thesis scenarios, with exact derivatives."""
+"""The desired motion and force of a task-space scheme, with exact derivatives.
+
+Three sources, one after the other:
+
+1. The scheme's own trajectory, per position axis (3.93; 5.21-5.22 with phases)
+
+       r_d(t) = offset - amplitude * cos(w t + phase)     (+ the start position r(0) if
+       r_d'   = amplitude * w sin(w t + phase)              ``reference_relative``)
+       r_d''  = amplitude * w^2 cos(w t + phase)
+
+   The thesis's paths are absolute; on any other robot the default is relative with zero
+   amplitude: the controller holds the position it starts in.
+2. A target pose (``~/target_pose``): from the first one on, r_d follows the latest target
+   through a critically damped filter of natural frequency w_f (``target_filter_frequency``),
+
+       r_d'' = w_f^2 (p_target - r_d) - 2 w_f r_d',
+
+   started from the trajectory's r_d, r_d' at that moment, so a new target never jumps the
+   reference (Mayr's controller #5: "tries to move very fast on a new reference"). The desired
+   orientation (the tip's orientation at the first state until a target arrives) follows
+   the same filter on SO(3): w_d' = w_f^2 log(q_target q_d^-1) - 2 w_f w_d, q_d advanced by
+   exp(w_d dt).
+3. The desired force f_d: ``desired_force``, or the latest ``~/target_wrench``. A force
+   admittance on the reference makes the position laws of chapter 3 (which regulate
+   position, the force following from the environment: 3.5) hold a force: along
+   n_f = f_d/|f_d| the reference is moved by delta,
+
+       m_a delta'' + d_a delta' = n_f^T (f_d - f),   r_d <- r_d - delta n_f  (and r_d', r_d''),
+
+   |delta| <= ``force_admittance_limit``; off while ``force_admittance_damping`` is 0 (the
+   thesis runs). In steady contact n_f^T f = |f_d| whatever the surface's stiffness.
+
+The filter and the admittance are advanced by one classical RK4 step over each cycle's dt
+(the force held over the step) before the values are read.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +43,70 @@ from numba import njit
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
+from cr_control.core.so3 import (
+    quaternion_conjugate,
+    quaternion_exp,
+    quaternion_from_matrix,
+    quaternion_multiply,
+    rotation_vector,
+)
+
+
+def reference_parameters(m: int, offset: list[float], amplitude: list[float],
+                         phase: list[float], frequency: float, relative: bool,
+                         desired_force: list[float] | None, what: str) -> list[Param]:
+    """Parameters of the desired motion and force on an m-axis position task, with the
+    defaults given (``what`` names their source: a thesis section or "hold"); no
+    ``desired_force`` parameter if its default is None (a law with its own, 5.9)."""
+    force = [] if desired_force is None else [
+        Param("desired_force", desired_force, "Desired contact force f_d on the robot (N), base "
+              "frame (3.5); ~/target_wrench replaces it.", "vector", m)]
+    return [
+        Param("reference_offset", offset, "r_d = offset - amplitude*cos(w t + phase) per axis: "
+              f"offset (m) ({what}).", "vector", m),
+        Param("reference_amplitude", amplitude, "r_d: amplitude per axis (m).", "vector", m),
+        Param("reference_phase", phase, "r_d: phase per axis (rad).", "vector", m),
+        Param("reference_frequency", frequency, "r_d: angular frequency w (rad/s).",
+              "nonnegative"),
+        Param("reference_relative", relative, "r_d's offset is relative to the tip position at "
+              "the first state (true) or absolute in the base frame (false).", "bool"),
+        *force,
+        Param("target_filter_frequency", 5.0, "Targets from ~/target_pose are followed through "
+              "a critically damped filter of this natural frequency (rad/s).", "positive"),
+        Param("force_admittance_mass", 1.0, "Force admittance on the reference: mass m_a "
+              "(kg) of m_a delta'' + d_a delta' = n_f^T (f_d - f).", "positive"),
+        Param("force_admittance_damping", 0.0, "Force admittance on the reference: damping "
+              "d_a (N s/m); 0 = off (the thesis's laws as printed).", "nonnegative"),
+        Param("force_admittance_limit", 0.05, "Force admittance: largest shift |delta| of the "
+              "reference along the desired force (m).", "nonnegative"),
+    ]
+
+
+#: Targets set by the node (one float vector): a pose counter (0 = none yet), its position
+#: (3) and quaternion [w, x, y, z]; a wrench counter (0 = none yet) and its force (3).
+TARGETS = Layout(pose_seq=1, position=3, quaternion=4, wrench_seq=1, force=3)
+_T_POSE_SEQ, _T_POS, _T_QUAT, _T_WRENCH_SEQ, _T_FORCE = (TARGETS.offset(n) for n in TARGETS.shapes)
+
+
+def reference_gains(m: int, n: int) -> Layout:
+    """Packed reference parameters for m axes and n joints (names = parameter names; the
+    posture comes here too: it is held like the start pose)."""
+    return Layout(reference_offset=m, reference_amplitude=m, reference_phase=m,
+                  reference_frequency=1, reference_relative=1, desired_force=m,
+                  target_filter_frequency=1, force_admittance_mass=1, force_admittance_damping=1,
+                  force_admittance_limit=1, posture=n, posture_given=1)
+
+
+def reference_state(m: int, n: int) -> Layout:
+    """The desired motion's internal state for m axes and n joints."""
+    return Layout(started=1, r_start=m, quat_start=4, q_start=n, pose_seq=1, r_f=m, v_f=m,
+                  quat_f=4, w_f=3, delta=2)
+
+
+@njit(cache=True, error_model="numpy")
+def reference_state_size(m, n):
+    """reference_state(m, n).size, for kernels (the scheme's own state follows it)."""
+    return 3 * m + n + 15
 
 
 @njit(cache=True, error_model="numpy")
@@ -25,48 +123,106 @@ def cosine_reference(offset, amplitude, phase, w, t):
     return r, v, a
 
 
-class CosineTrajectory:
-    """Python entry point of :func:`cosine_reference` with fixed offset, amplitude, phase, w."""
-
-    def __init__(self, offset, amplitude, frequency: float, phase=(0.0, 0.0)):
-        self.offset = np.asarray(offset, dtype=float)
-        self.amplitude = np.asarray(amplitude, dtype=float)
-        self.phase = np.asarray(phase, dtype=float)
-        self.frequency = float(frequency)
-
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(r_d, r_d', r_d'') at time t."""
-        return cosine_reference(self.offset, self.amplitude, self.phase, self.frequency, t)
-
-
-#: Parameters of the chapter 3 desired motion (3.93) and force.
-CHAPTER3_REFERENCE = [
-    Param("reference_offset", [0.0, 0.35],
-          "r_d = offset - amplitude*cos(w t + phase): offset (m).", "vector", 2),
-    Param("reference_amplitude", [0.1, 0.1], "r_d: amplitude per axis (m).", "vector", 2),
-    Param("reference_phase", [0.0, 0.0], "r_d: phase per axis (rad).", "vector", 2),
-    Param("reference_frequency", 2.0, "r_d: angular frequency w (rad/s).", "nonnegative"),
-    Param("desired_force", [5.0, -5.0], "Desired contact force f_d on the robot (N) (3.5).",
-          "vector", 2),
-]
-
-#: Packed form of the reference parameters for the kernels (names = parameter names).
-REFERENCE = Layout(reference_offset=2, reference_amplitude=2, reference_phase=2,
-                   reference_frequency=1, desired_force=2)
-_OFFSET, _AMPLITUDE, _PHASE, _W, _F_D = (
-    REFERENCE.offset(n) for n in ("reference_offset", "reference_amplitude", "reference_phase",
-                                  "reference_frequency", "desired_force"))
+@njit(cache=True, error_model="numpy")
+def _filter_step(x, v, target, w, dt):
+    """One RK4 step of x'' = w^2 (target - x) - 2 w x' (target held)."""
+    def f(x, v):
+        return v, w * w * (target - x) - 2.0 * w * v
+    k1x, k1v = f(x, v)
+    k2x, k2v = f(x + 0.5 * dt * k1x, v + 0.5 * dt * k1v)
+    k3x, k3v = f(x + 0.5 * dt * k2x, v + 0.5 * dt * k2v)
+    k4x, k4v = f(x + dt * k3x, v + dt * k3v)
+    return (x + dt / 6.0 * (k1x + 2.0 * (k2x + k3x) + k4x),
+            v + dt / 6.0 * (k1v + 2.0 * (k2v + k3v) + k4v))
 
 
 @njit(cache=True, error_model="numpy")
-def packed_reference(gains, t):
-    """(r_d, r_d', r_d'', f_d) from a packed REFERENCE block at time t."""
-    r, v, a = cosine_reference(gains[_OFFSET:_OFFSET + 2], gains[_AMPLITUDE:_AMPLITUDE + 2],
-                               gains[_PHASE:_PHASE + 2], gains[_W], t)
-    return r, v, a, gains[_F_D:_F_D + 2]
+def _admittance_step(delta, delta_dot, push, m_a, d_a, limit, dt):
+    """One RK4 step of m_a delta'' + d_a delta' = push (held), |delta| <= limit."""
+    def acc(dd):
+        return (push - d_a * dd) / m_a
+    k1x, k1v = delta_dot, acc(delta_dot)
+    k2x, k2v = delta_dot + 0.5 * dt * k1v, acc(delta_dot + 0.5 * dt * k1v)
+    k3x, k3v = delta_dot + 0.5 * dt * k2v, acc(delta_dot + 0.5 * dt * k2v)
+    k4x, k4v = delta_dot + dt * k3v, acc(delta_dot + dt * k3v)
+    delta += dt / 6.0 * (k1x + 2.0 * (k2x + k3x) + k4x)
+    delta_dot += dt / 6.0 * (k1v + 2.0 * (k2v + k3v) + k4v)
+    if abs(delta) > limit:
+        delta, delta_dot = math.copysign(limit, delta), 0.0
+    return delta, delta_dot
 
 
-def chapter3_reference(values: dict) -> CosineTrajectory:
-    """The desired motion of section 3.5 from converted parameter values."""
-    return CosineTrajectory(values["reference_offset"], values["reference_amplitude"],
-                            values["reference_frequency"], values["reference_phase"])
+@njit(cache=True, error_model="numpy")
+def _rows_of(x, rows, m):
+    out = np.empty(m)
+    for i in range(m):
+        out[i] = x[int(rows[i])]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
+    """(r_d, r_d', r_d'', f_d, q_d, w_d, posture) at time t (module docstring).
+
+    ``rows`` are the position rows of the task, ``gains`` / ``state`` the packed
+    reference_gains / reference_state blocks, ``targets`` the TARGETS vector; r, R, q are the
+    measured tip position (task rows), tip rotation and joint positions, ``force`` the
+    measured force on the task rows (for the admittance)."""
+    m, n = r.shape[0], q.shape[0]
+    o_off, o_amp, o_ph = 0, m, 2 * m
+    o_w, o_rel, o_fd = 3 * m, 3 * m + 1, 3 * m + 2
+    o_wf, o_ma, o_da, o_lim = 4 * m + 2, 4 * m + 3, 4 * m + 4, 4 * m + 5
+    o_post, o_post_given = 4 * m + 6, 4 * m + 6 + n
+    s_r0, s_q0, s_qs = 1, 1 + m, 5 + m
+    s_seq, s_rf, s_vf = 5 + m + n, 6 + m + n, 6 + 2 * m + n
+    s_qf, s_wf, s_delta = 6 + 3 * m + n, 10 + 3 * m + n, 13 + 3 * m + n
+    if state[0] == 0.0:
+        state[0] = 1.0
+        state[s_r0:s_r0 + m] = r
+        state[s_q0:s_q0 + 4] = quaternion_from_matrix(R)
+        state[s_qs:s_qs + n] = q
+        state[s_qf:s_qf + 4] = state[s_q0:s_q0 + 4]
+    offset = gains[o_off:o_off + m].copy()
+    if gains[o_rel] > 0.0:
+        offset += state[s_r0:s_r0 + m]
+    r_d, v_d, a_d = cosine_reference(offset, gains[o_amp:o_amp + m], gains[o_ph:o_ph + m],
+                                     gains[o_w], t)
+    quat_d, w_d = state[s_qf:s_qf + 4].copy(), state[s_wf:s_wf + 3].copy()
+    w_f = gains[o_wf]
+    if targets[_T_POSE_SEQ] != state[s_seq]:
+        if state[s_seq] == 0.0:                 # first target: start from the trajectory
+            state[s_rf:s_rf + m], state[s_vf:s_vf + m] = r_d, v_d
+        state[s_seq] = targets[_T_POSE_SEQ]
+    elif state[s_seq] != 0.0 and dt > 0.0:
+        target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
+        x, xd = _filter_step(state[s_rf:s_rf + m], state[s_vf:s_vf + m], target, w_f, dt)
+        state[s_rf:s_rf + m], state[s_vf:s_vf + m] = x, xd
+        w_rot = state[s_wf:s_wf + 3]
+        err = rotation_vector(quaternion_multiply(targets[_T_QUAT:_T_QUAT + 4],
+                                                  quaternion_conjugate(state[s_qf:s_qf + 4])))
+        w_rot += dt * (w_f * w_f * err - 2.0 * w_f * w_rot)
+        state[s_qf:s_qf + 4] = quaternion_multiply(quaternion_exp(dt * w_rot), state[s_qf:s_qf + 4])
+        quat_d, w_d = state[s_qf:s_qf + 4].copy(), w_rot.copy()
+    if state[s_seq] != 0.0:
+        target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
+        r_d, v_d = state[s_rf:s_rf + m].copy(), state[s_vf:s_vf + m].copy()
+        a_d = w_f * w_f * (target - r_d) - 2.0 * w_f * v_d
+    f_d = gains[o_fd:o_fd + m].copy()
+    if targets[_T_WRENCH_SEQ] != 0.0:
+        f_d = _rows_of(targets[_T_FORCE:_T_FORCE + 3], rows, m)
+    d_a = gains[o_da]
+    f_norm = math.sqrt(np.sum(f_d * f_d))
+    if d_a > 0.0 and f_norm > 0.0:
+        n_f = f_d / f_norm
+        m_a = gains[o_ma]
+        push = np.sum(n_f * (f_d - force))
+        delta, delta_dot = state[s_delta], state[s_delta + 1]
+        if dt > 0.0:
+            delta, delta_dot = _admittance_step(delta, delta_dot, push, m_a, d_a,
+                                                gains[o_lim], dt)
+            state[s_delta], state[s_delta + 1] = delta, delta_dot
+        r_d -= delta * n_f
+        v_d -= delta_dot * n_f
+        a_d -= (push - d_a * delta_dot) / m_a * n_f
+    posture = gains[o_post:o_post + n] if gains[o_post_given] > 0.0 else state[s_qs:s_qs + n]
+    return r_d, v_d, a_d, f_d, quat_d, w_d, posture.copy()

@@ -1,156 +1,471 @@
-"""Task-space quantities of the 2-link arm shared by the chapter 3 and 5 schemes.
+"""The task space of any serial arm from its URDF: the thesis's task-space model (3.2) on n joints.
 
-Task-space model (3.2): M_r r'' + C_r r' + G_r = J^-T tau + f with
-M_r = J^-T M J^-1, C_r = J^-T (M d(J^-1)/dt + C J^-1), G_r = J^-T G.
+Chapter 3 writes the arm seen from its end effector as (3.2)
+
+    M_r r'' + C_r r' + G_r = J^-T tau + f,   M_r = J^-T M J^-1,
+    C_r = J^-T (M d(J^-1)/dt + C J^-1),      G_r = J^-T G,
+
+for a square Jacobian J (the planar 2-link arm). For n joints and an m-dimensional position
+task (m = 2 on a planar arm, 3 on a spatial one) J^-1 becomes the dynamically consistent
+generalised inverse (Khatib 1987) J_bar = M^-1 J^T Lambda, Lambda = (J M^-1 J^T)^-1, and
+
+    M_r = Lambda
+    C_r v = Lambda (J M^-1 C J_bar v - J' J_bar v)                 (d(J_bar)/dt ~ -J_bar J' J_bar)
+    G_r = Lambda J M^-1 G
+    tau = J^T (M_r a + C_r v + G_r + F) + N^T tau_0,   N = I - J_bar J,
+
+which are exactly the thesis's expressions when n = m (J_bar = J^-1, N = 0): the planar
+thesis arm is the special case of this one path. C is the Christoffel-form Coriolis matrix
+(C v products from the compiled chain, :mod:`cr_control.models.spatial_chain`).
+
+The scheme's law owns the position task: it chooses the task acceleration a, the velocity
+v it is evaluated at and any extra task force F (3.32, 3.48, 3.76, 5.7). Everything else
+acts in the dynamically consistent null space of the position task, so it never disturbs
+the law's closed loop:
+
+- a Cartesian orientation impedance m_o = K_o e_o + D_o (w_d - w), e_o = log(R_d R^T)
+  (:mod:`cr_control.core.so3`), tau_o = J_o^T m_o, on the rotation axes the arm can turn
+  (all three for a spatial arm, none for the 2-link arm);
+- a posture task tau_p = K_n (q_p - q) - D_n q' in the null space of position and
+  orientation together (redundant arms: the Panda's elbow);
+- gravity: J^T G_r compensates only the task part of G, so N^T G is added.
+
+Near singularities the generalised inverse is damped: Lambda = (J M^-1 J^T + lambda^2 I)^-1
+with lambda^2 = max(0, 1/m_s - mu_min), mu_min the smallest eigenvalue of J M^-1 J^T, so the
+task's apparent mass never exceeds ``singularity_mass`` m_s (default 100 kg: the thesis's
+paths reach 14 kg on the chapter 3 arm and 25 kg on the chapter 5 arm, so they are never
+damped; the Panda and UR5 sit at 2-10 kg away from singularities). ``singularity_damping``
+in the status reports lambda^2. The stacked position/orientation Jacobian of the posture
+projector has its rotation rows scaled by ORIENTATION_LENGTH (0.1 m) so one cap in kg holds
+for both.
+
+Joint limits from the URDF: each command is clipped to the joint's effort limit, and a
+guard pushes back within ``joint_limit_margin`` of a position limit (stiffness
+``joint_limit_stiffness``) and brakes a joint beyond VELOCITY_FRACTION of its velocity
+limit (``joint_limit_damping``); the thesis runs never come near either.
+A scheme that must not use a dynamics model (3.76) works with ``model_free``: M = I, no
+gravity, so its projectors are the kinematic ones.
 """
 
 from __future__ import annotations
 
+import math
+from collections import namedtuple
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numba import njit
 
-from cr_control.core.linalg import inv2, matmul, matvec, tmatvec
-from cr_control.core.parameters import Param
-from cr_control.models.arm_model import LinkParameters, TwoLinkArm
-from cr_control.models.planar_chain import (
-    PlanarChain,
-    coriolis_matrix,
-    mass_matrix,
-    rnea,
-    tool_jacobian_dot,
-    tool_kinematics,
+from cr_control.core.linalg import (
+    cholesky_into,
+    cholesky_solve_into,
+    cholesky_solve_matrix,
+    matmul,
+    matvec,
+    min_eigenvalue_sym,
+    spd_inverse,
+    tmatvec,
 )
-from cr_control.schemes.blocks.references import CHAPTER3_REFERENCE, chapter3_reference
+from cr_control.core.packing import Layout
+from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.so3 import orientation_error
+from cr_control.models import spatial_chain as sc
+from cr_control.models.urdf import ChainModel, RobotModelError, load_chain
+from cr_control.schemes.blocks.references import desired_motion, reference_gains
 
-#: The controller's model of the arm (thesis values; the robust schemes use wrong ones).
-ARM_MODEL_PARAMETERS = [
-    Param("model_link_length", [0.3, 0.3], "Controller model: link lengths (m).",
-          "positive_vector", 2, read_only=True),
-    Param("model_link_com", [0.15, 0.15], "Controller model: centre-of-mass distances (m).",
-          "positive_vector", 2, read_only=True),
-    Param("model_link_mass", [0.1, 0.1], "Controller model: link masses (kg).",
-          "positive_vector", 2, read_only=True),
-    Param("model_link_inertia", [0.3, 0.3], "Controller model: link inertias (kg m^2).",
-          "positive_vector", 2, read_only=True),
-    Param("model_gravity", 9.8, "Controller model: gravity (m/s^2).", "nonnegative",
-          read_only=True),
+#: Rotation rows of the posture projector are scaled by this length (m), see the docstring.
+ORIENTATION_LENGTH = 0.1
+#: The velocity guard brakes a joint beyond this fraction of its URDF velocity limit.
+VELOCITY_FRACTION = 0.8
+AXES = "xyz"
+
+#: The robot a task-space controller acts on (read-only: the model is built once).
+ROBOT_PARAMETERS = [
+    Param("robot_description", "", "The robot's URDF XML (as robot_state_publisher takes it); "
+          "if empty, urdf_file is read.", "string", read_only=True),
+    Param("urdf_file", "two_link_arm.urdf", "URDF file: a path, a file of cr_control's config "
+          "directory, or package://PKG/path. Default: the thesis's 2-link arm (0.3 m links).",
+          "string", read_only=True),
+    Param("base_link", "base_link", "First link of the controlled chain: positions, the target "
+          "pose and the wrench are expressed in its frame.", "string", read_only=True),
+    Param("tip_link", "tool0", "End-effector link: the point whose motion and contact force "
+          "the law controls.", "string", read_only=True),
+    Param("gravity", [0.0, -9.8, 0.0], "Gravity in the base frame (m/s^2); the thesis arm moves "
+          "in the vertical x-y plane (9.8 along -y), a URDF arm usually has [0, 0, -9.81].",
+          "vector", 3, read_only=True),
+    Param("model_mass_scale", 1.0, "The controller's model: every link mass times this (1 = the "
+          "URDF's; a deliberately wrong model shows robustness).", "positive", read_only=True),
+    Param("model_inertia_scale", 1.0, "The controller's model: every rotational inertia about "
+          "the centre of mass times this.", "positive", read_only=True),
 ]
 
-TASK_SPACE_PARAMETERS = ARM_MODEL_PARAMETERS + CHAPTER3_REFERENCE
+#: Everything below the position task: orientation, posture, singularities, joint limits.
+NULL_SPACE_PARAMETERS = [
+    Param("orientation_stiffness", [30.0, 30.0, 30.0], "Cartesian orientation impedance: "
+          "stiffness K_o per rotation axis of the base frame (N m/rad); acts on the axes the "
+          "arm can turn beside its position task (none on the thesis's 2-link arm).",
+          "nonnegative_vector", 3),
+    Param("orientation_damping", [3.0, 3.0, 3.0], "Cartesian orientation impedance: damping "
+          "D_o per rotation axis (N m s/rad).", "nonnegative_vector", 3),
+    Param("posture", [], "Joint posture the null space is pulled to (one value per chain "
+          "joint, rad or m); empty = the configuration of the first state.", "vector",
+          read_only=True),
+    Param("posture_stiffness", 10.0, "Null-space posture stiffness K_n (N m/rad), acting only "
+          "where neither position nor orientation needs the joints.", "nonnegative"),
+    Param("posture_damping", 2.0, "Null-space posture damping D_n (N m s/rad).", "nonnegative"),
+    Param("singularity_mass", 100.0, "The generalised inverse is damped so that the task's "
+          "apparent mass stays below this (kg): zero damping away from singularities.",
+          "positive"),
+    Param("joint_limit_margin", 0.1, "Within this of a URDF position limit (rad or m) the "
+          "joint limit guard pushes back.", "nonnegative"),
+    Param("joint_limit_stiffness", 50.0, "Joint limit guard stiffness (N m/rad).", "nonnegative"),
+    Param("joint_limit_damping", 20.0, f"Joint limit guard: braking per rad/s beyond "
+          f"{VELOCITY_FRACTION:g} of a URDF velocity limit (N m s/rad).", "nonnegative"),
+]
+
+#: Packed form of the live NULL_SPACE_PARAMETERS (names = parameter names).
+NULL_SPACE_GAINS = Layout(orientation_stiffness=3, orientation_damping=3, posture_stiffness=1,
+                          posture_damping=1, singularity_mass=1, joint_limit_margin=1,
+                          joint_limit_stiffness=1, joint_limit_damping=1)
+_K_O, _D_O, _K_N, _D_N, _M_S, _MARGIN, _K_LIM, _D_LIM = (
+    NULL_SPACE_GAINS.offset(name) for name in NULL_SPACE_GAINS.shapes)
+NULL_SPACE_SIZE = NULL_SPACE_GAINS.size
 
 
-def inverse_2x2(A: np.ndarray) -> np.ndarray:
-    """Inverse of a 2x2 matrix (much cheaper than numpy's general solver at this size)."""
-    a, b, c, d = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
-    det = a * d - b * c
-    return np.array([[d, -b], [-c, a]]) / det
+# -- the model, built once ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TaskModel:
+    """The chain and the task rows of one robot (Python side, made at start-up).
 
-
-@dataclass
-class TaskState:
-    """End-effector state of one cycle: r, r', J(q), J(q)^-1, J'(q, q') q'."""
-
-    r: np.ndarray
-    r_dot: np.ndarray
-    J: np.ndarray
-    J_inv: np.ndarray
-    jdot_v: np.ndarray
-
-
-def arm_from_values(values: dict) -> TwoLinkArm:
-    """The controller's arm model from its ``model_*`` parameters."""
-    return TwoLinkArm(LinkParameters(
-        length=list(values["model_link_length"]), com=list(values["model_link_com"]),
-        mass=list(values["model_link_mass"]), inertia=list(values["model_link_inertia"]),
-        gravity=values["model_gravity"],
-    ))
-
-
-# -- compiled kernels (numba): the chain is the packed PlanarChain of the controller's model --
-@njit(cache=True, error_model="numpy")
-def task_state(chain, q, v):
-    """(r, r' = J q', J, J^-1, J' q') at (q, q')."""
-    r, J, jdot_v = tool_kinematics(chain, q, v)
-    return r, matvec(J, v), J, inv2(J), jdot_v
-
-
-@njit(cache=True, error_model="numpy")
-def torque_for_acceleration(chain, q, v, J, J_inv, jdot_v, a, f):
-    """tau = J^T (M_r a + C_r r' + G_r - f), evaluated in joint space as
-    M J^-1 (a - J' q') + C q' + G - J^T f (one recursive Newton-Euler pass)."""
-    qdd = matvec(J_inv, a - jdot_v)
-    return rnea(chain, q, v, qdd, True) - tmatvec(J, f)
-
-
-@njit(cache=True, error_model="numpy")
-def task_dynamics(chain, q, v, J_inv):
-    """M_r, C_r, G_r of (3.2) at (q, q'): J^-T M J^-1, J^-T (M d(J^-1)/dt + C J^-1), J^-T G,
-    with d(J^-1)/dt = -J^-1 J' J^-1 and C in Christoffel form."""
-    M = mass_matrix(chain, q)
-    C = coriolis_matrix(chain, q, v)
-    zero = np.zeros(q.shape[0])
-    G = rnea(chain, q, zero, zero, True)
-    J_inv_T = J_inv.T.copy()
-    J_inv_dot = -matmul(matmul(J_inv, tool_jacobian_dot(chain, q, v)), J_inv)
-    M_r = matmul(matmul(J_inv_T, M), J_inv)
-    C_r = matmul(J_inv_T, matmul(M, J_inv_dot) + matmul(C, J_inv))
-    return M_r, C_r, matvec(J_inv_T, G)
-
-
-class ArmTaskSpace:
-    """The controller's model of the arm seen from the end effector, and its reference.
-
-    ``chain`` (packed, for the kernels) comes from the Pinocchio model of the URDF with the
-    ``model_*`` parameters; the methods are Python entry points to the kernels.
+    ``task`` is the packed description the kernels read: [n, m, m_o, position rows (3),
+    orientation rows (3), model_free]; rows index the 6 rows [v_x, v_y, v_z, w_x, w_y, w_z]
+    of the tip's Jacobian, -1 where unused. ``limits`` packs lower, upper, velocity, effort.
     """
 
-    def __init__(self, values: dict):
-        self.arm = arm_from_values(values)
-        self.chain = PlanarChain.from_model(self.arm.model, "tool0").chain
-        self.reference = chapter3_reference(values)
+    chain_model: ChainModel
+    chain: np.ndarray
+    task: np.ndarray
+    limits: np.ndarray
+    position_axes: tuple[str, ...]
+    orientation_axes: tuple[str, ...]
 
-    def state(self, q: np.ndarray, v: np.ndarray) -> TaskState:
-        """r, r' = J q', J, J^-1 and J' q' at (q, q')."""
-        return TaskState(*task_state(self.chain, q, v))
+    @property
+    def n(self) -> int:
+        return self.chain_model.n
 
-    def torque_for_acceleration(self, q: np.ndarray, v: np.ndarray, ts: TaskState,
-                                a: np.ndarray, force: np.ndarray) -> np.ndarray:
-        """tau = J^T (M_r a + C_r r' + G_r - f)."""
-        return torque_for_acceleration(self.chain, q, v, ts.J, ts.J_inv, ts.jdot_v, a, force)
+    @property
+    def m(self) -> int:
+        return len(self.position_axes)
 
-    def dynamics(self, q: np.ndarray, v: np.ndarray,
-                 ts: TaskState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """M_r, C_r, G_r of (3.2) at (q, q')."""
-        return task_dynamics(self.chain, q, v, ts.J_inv)
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.chain_model.joint_names
+
+    @property
+    def redundant(self) -> bool:
+        """True if joints are left after position and orientation: a posture task acts."""
+        return self.n > self.m + len(self.orientation_axes)
 
 
-#: Where a cycle kernel writes its results in the one output vector the scheme allocates per
-#: cycle (boxing three returned arrays costs ~100 interpreter loop iterations, slicing one
-#: vector ~10): [command (n) | reference values (8) | status values].
-N_REFERENCE = 8
+def moved_rows(chain: np.ndarray, chain_model: ChainModel, samples: int = 8) -> list[int]:
+    """Rows of the 6-row tip Jacobian that are not zero everywhere: a planar arm moves the
+    tip in its plane and turns it about the plane's normal only (sampled over random
+    configurations within the joint limits, fixed seed)."""
+    rng = np.random.default_rng(1)
+    lim = chain_model.limits
+    lower = np.where(np.isfinite(lim.lower), lim.lower, -np.pi)
+    upper = np.where(np.isfinite(lim.upper), lim.upper, np.pi)
+    peak = np.zeros(6)
+    zero = np.zeros(chain_model.n)
+    for _ in range(samples):
+        _, _, J, _ = sc.tip_kinematics(chain, rng.uniform(lower, upper), zero)
+        peak = np.maximum(peak, np.abs(J).max(axis=1))
+    return [i for i in range(6) if peak[i] > 1e-9]
+
+
+def scaled_chain(chain: np.ndarray, mass_scale: float, inertia_scale: float) -> np.ndarray:
+    """A copy of a packed chain with every mass and rotational inertia scaled."""
+    out = chain.copy()
+    sc.scale_inertias(out, mass_scale, inertia_scale)
+    return out
+
+
+@lru_cache(maxsize=16)
+def _task_model(urdf: str, urdf_file: str, base: str, tip: str, gravity: tuple[float, ...],
+                mass_scale: float, inertia_scale: float, model_free: bool) -> TaskModel:
+    try:
+        chain_model = load_chain(urdf, urdf_file, base, tip, np.array(gravity))
+    except RobotModelError as exc:
+        raise ParameterError(str(exc)) from None
+    packed = sc.SpatialChain.from_chain(chain_model).chain
+    rows = moved_rows(packed, chain_model)
+    position = [r for r in rows if r < 3]
+    rotation = [r - 3 for r in rows if r >= 3]
+    n = chain_model.n
+    if len(position) > n:
+        raise ParameterError(f"{n} joints cannot move the tip in {len(position)} directions: "
+                             "a position task needs at least as many joints")
+    if len(position) + len(rotation) > n:
+        rotation = []      # not enough joints to hold the orientation too: position only
+    task = np.full(10, -1.0)
+    task[0], task[1], task[2] = n, len(position), len(rotation)
+    task[3:3 + len(position)] = position
+    task[6:6 + len(rotation)] = rotation
+    task[9] = 1.0 if model_free else 0.0
+    model_chain = sc.kinematics_only(packed) if model_free else scaled_chain(packed, mass_scale,
+                                                                              inertia_scale)
+    lim = chain_model.limits
+    limits = np.concatenate([lim.lower, lim.upper, lim.velocity, lim.effort])
+    return TaskModel(chain_model, model_chain, task, limits,
+                     tuple(AXES[r] for r in position), tuple(AXES[r] for r in rotation))
+
+
+def task_model(values: dict, model_free: bool = False) -> TaskModel:
+    """The task model of the robot named by the ROBOT_PARAMETERS ``values`` (cached;
+    ParameterError with a one-line reason if the robot cannot be built)."""
+    return _task_model(values["robot_description"], values["urdf_file"], values["base_link"],
+                       values["tip_link"], tuple(float(g) for g in values["gravity"]),
+                       float(values["model_mass_scale"]), float(values["model_inertia_scale"]),
+                       model_free)
+
+
+def status_fields(model: TaskModel) -> tuple[list[str], list[str]]:
+    """(reference fields, status fields) of a task-space scheme on ``model``, stamps first:
+    per position axis r_d, v_d, a_d, f_d; r, v, f, e, f_err; tau per joint; then
+    compute_time_us, held, singularity_damping, the orientation error per held rotation axis
+    and, on a redundant arm, the posture error |N_s^T (q_p - q)| (what the posture task,
+    projected beside position and orientation, still pulls at: 0 once the posture is as
+    close to q_p as the task allows).
+    On the thesis arm the fields up to held are topics' 2-D ones."""
+    ax = model.position_axes
+    per = lambda names: [f"{name}_{a}" for name in names for a in ax]  # noqa: E731
+    reference = ["stamp"] + per(["r_d", "v_d", "a_d", "f_d"])
+    status = (["stamp"] + per(["r", "v", "f", "e", "f_err"])
+              + [f"tau_{i + 1}" for i in range(model.n)] + ["compute_time_us", "held"])
+    task = ["singularity_damping"] + [f"e_rot_{a}" for a in model.orientation_axes]
+    if model.redundant:
+        task.append("posture_error")
+    return reference, status + task
+
+
+# -- compiled: one cycle's task frame -------------------------------------------------------------
+TaskFrame = namedtuple("TaskFrame", [
+    "q", "v", "r", "r_dot", "J", "J_dot", "R", "omega", "J_o", "M_chol", "h", "G",
+    "Lam", "J_bar", "damping"])
 
 
 @njit(cache=True, error_model="numpy")
-def split_output(out, n):
-    """(command, reference, status) views of a cycle's output vector."""
-    return out[:n], out[n:n + N_REFERENCE], out[n + N_REFERENCE:]
+def damped_inverse_mobility(J, M_chol, singularity_mass):
+    """(Lambda, J_bar, lambda^2): Lambda = (J M^-1 J^T + lambda^2 I)^-1 with lambda^2 capping
+    the apparent mass at singularity_mass, and J_bar = M^-1 J^T Lambda."""
+    MinvJT = cholesky_solve_matrix(M_chol, J.T.copy())
+    mobility = matmul(J, MinvJT)
+    lam2 = max(0.0, 1.0 / singularity_mass - min_eigenvalue_sym(mobility))
+    for i in range(mobility.shape[0]):
+        mobility[i, i] += lam2
+    Lam = spd_inverse(mobility)
+    return Lam, matmul(MinvJT, Lam), lam2
 
 
 @njit(cache=True, error_model="numpy")
-def write_task_space(out, r_d, v_d, a_d, f_d, r, r_dot, f, e, tau):
-    """Fill the output vector: command tau, reference (topics.REFERENCE_FIELDS after stamp)
-    and the task-space part of the status (topics.STATUS_FIELDS after stamp); the rest of
-    the status (timing, held, the scheme's fields) is zeroed for the caller to fill."""
-    n = tau.shape[0]
-    command, reference, status = split_output(out, n)
-    command[:] = tau
-    reference[0:2], reference[2:4], reference[4:6], reference[6:8] = r_d, v_d, a_d, f_d
-    status[:] = 0.0
-    for i in range(2):
-        status[i], status[2 + i], status[4 + i] = r[i], r_dot[i], f[i]
-        status[6 + i], status[8 + i] = e[i], f_d[i] - f[i]
+def _rows(A, task, first, count):
+    out = np.empty((count, A.shape[1]))
+    for i in range(count):
+        out[i] = A[int(task[first + i])]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _entries(x, task, first, count):
+    out = np.empty(count)
+    for i in range(count):
+        out[i] = x[int(task[first + i])]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def task_frame(chain, task, singularity_mass, q, v):
+    """Everything a cycle needs at the measured (q, q'): the tip's position task r, r', J,
+    J' (rows of the position axes), its rotation R and angular velocity w, the rows J_o of
+    the held rotation axes, the Cholesky factor of M, h = C q' + G, G, the damped Lambda,
+    J_bar and lambda^2 (identity M and no gravity for a model-free law)."""
+    n, m, m_o = int(task[0]), int(task[1]), int(task[2])
+    work = np.empty(sc.work_length(n))
+    sc.tip_dynamics_into(chain, q, v, work)
+    p, R, J6, _, M, h = sc.output_views(work, n)
+    J6_dot = sc.jacobian_dot(chain, q, v)
+    M_chol = np.zeros((n, n))
+    if task[9] > 0.0:
+        for i in range(n):
+            M_chol[i, i] = 1.0
+        h, G = np.zeros(n), np.zeros(n)
+    else:
+        if not cholesky_into(M, M_chol):
+            M_chol[:, :] = np.nan
+        zero = np.zeros(n)
+        G = sc.rnea(chain, q, zero, zero, True)
+    J = _rows(J6, task, 3, m)
+    r_dot6 = matvec(J6, v)
+    Lam, J_bar, lam2 = damped_inverse_mobility(J, M_chol, singularity_mass)
+    return TaskFrame(q, v, _entries(p, task, 3, m), _entries(r_dot6, task, 3, m), J,
+                     _rows(J6_dot, task, 3, m), R.copy(), r_dot6[3:].copy(),
+                     _rows(J6[3:], task, 6, m_o), M_chol, h.copy(), G, Lam, J_bar, lam2)
+
+
+@njit(cache=True, error_model="numpy")
+def model_force(chain, frame, a, v_task):
+    """M_r a + C_r v + G_r (3.2) at the frame's state, for task acceleration a and task
+    velocity v: Lambda (a - J' J_bar v + J M^-1 (C(q, q') J_bar v + G))."""
+    y = matvec(frame.J_bar, v_task)
+    w = sc.coriolis_product(chain, frame.q, frame.v, y) + frame.G
+    cholesky_solve_into(frame.M_chol, w, w)
+    return matvec(frame.Lam, a - matvec(frame.J_dot, y) + matvec(frame.J, w))
+
+
+@njit(cache=True, error_model="numpy")
+def task_dynamics(chain, frame):
+    """M_r, C_r, G_r of (3.2) as matrices at the frame's state (module docstring): for plots
+    and tests; a law uses :func:`model_force`."""
+    m, n = frame.J.shape
+    CJ = np.empty((n, m))
+    for j in range(m):
+        CJ[:, j] = sc.coriolis_product(chain, frame.q, frame.v, frame.J_bar[:, j].copy())
+    inner = matmul(frame.J, cholesky_solve_matrix(frame.M_chol, CJ)) - matmul(frame.J_dot, frame.J_bar)
+    G = frame.G.copy()
+    cholesky_solve_into(frame.M_chol, G, G)
+    return frame.Lam.copy(), matmul(frame.Lam, inner), matvec(frame.Lam, matvec(frame.J, G))
+
+
+@njit(cache=True, error_model="numpy")
+def project_null(frame, tau0):
+    """N^T tau_0 = tau_0 - J^T J_bar^T tau_0: what of tau_0 leaves the position task alone."""
+    return tau0 - tmatvec(frame.J, tmatvec(frame.J_bar, tau0))
+
+
+@njit(cache=True, error_model="numpy")
+def null_space_torque(task, gains, frame, quat_d, omega_d, posture):
+    """N^T (G + J_o^T m_o + N_s^T tau_p) (module docstring): gravity beyond the task, the
+    orientation impedance and the posture task; zero when the task takes every joint.
+    ``gains`` is the packed NULL_SPACE_GAINS block; returns (tau, e_o, posture error norm)."""
+    n, m, m_o = int(task[0]), int(task[1]), int(task[2])
+    e_o = _entries(orientation_error(quat_d, frame.R), task, 6, m_o)
+    if n == m:
+        return np.zeros(n), e_o, 0.0
+    tau0 = frame.G.copy()
+    if m_o > 0:
+        w_err = _entries(omega_d - frame.omega, task, 6, m_o)
+        m_rot = np.empty(m_o)
+        for i in range(m_o):
+            axis = int(task[6 + i])
+            m_rot[i] = gains[_K_O + axis] * e_o[i] + gains[_D_O + axis] * w_err[i]
+        tau0 += tmatvec(frame.J_o, m_rot)
+    posture_error = 0.0
+    if n > m + m_o:
+        dq = posture - frame.q
+        tau_p = gains[_K_N] * dq - gains[_D_N] * frame.v
+        stacked = np.empty((m + m_o, n))
+        stacked[:m] = frame.J
+        stacked[m:] = ORIENTATION_LENGTH * frame.J_o
+        _, J_bar_s, _ = damped_inverse_mobility(stacked, frame.M_chol, gains[_M_S])
+        tau0 += tau_p - tmatvec(stacked, tmatvec(J_bar_s, tau_p))
+        dq_null = dq - tmatvec(stacked, tmatvec(J_bar_s, dq))  # N_s^T (q_p - q): what the
+        posture_error = math.sqrt(np.sum(dq_null * dq_null))   # posture task still pulls at
+    return project_null(frame, tau0), e_o, posture_error
+
+
+@njit(cache=True, error_model="numpy")
+def joint_limit_torque(limits, gains, q, v):
+    """The joint limit guard (module docstring): push back within the margin of a position
+    limit, brake beyond VELOCITY_FRACTION of a velocity limit."""
+    n = q.shape[0]
+    margin, k_lim, d_lim = gains[_MARGIN], gains[_K_LIM], gains[_D_LIM]
+    tau = np.zeros(n)
     for i in range(n):
-        status[10 + i] = tau[i]
-    return status
+        lower, upper, v_max = limits[i], limits[n + i], limits[2 * n + i]
+        if q[i] < lower + margin:
+            tau[i] += k_lim * (lower + margin - q[i])
+        elif q[i] > upper - margin:
+            tau[i] -= k_lim * (q[i] - upper + margin)
+        excess = abs(v[i]) - VELOCITY_FRACTION * v_max
+        if excess > 0.0:
+            tau[i] -= math.copysign(d_lim * excess, v[i])
+    return tau
+
+
+@njit(cache=True, error_model="numpy")
+def clip_to_effort(limits, tau):
+    """Each joint's command clipped to its URDF effort limit (in place)."""
+    n = tau.shape[0]
+    for i in range(n):
+        e = limits[3 * n + i]
+        tau[i] = min(max(tau[i], -e), e)
+
+
+# -- a cycle's common front and back, for every task-space scheme ---------------------------------
+def common_gains_layout(n: int, m: int) -> Layout:
+    """The packed gains every task-space kernel starts with: the task description (10), the
+    joint limits (4 n), the command order (n: command k is chain joint order[k]), the
+    null-space gains, then the reference block (:func:`references.reference_gains`)."""
+    return Layout(task=10, limits=4 * n, order=n, null_space=NULL_SPACE_GAINS.size,
+                  reference=reference_gains(m, n).size)
+
+
+@njit(cache=True, error_model="numpy")
+def common_blocks(gains):
+    """(task, limits, order, null-space gains, reference gains, where the scheme's own gains
+    begin) of a packed gains vector (:func:`common_gains_layout`)."""
+    n, m = int(gains[0]), int(gains[1])
+    a = 10
+    b = a + 4 * n
+    c = b + n
+    d = c + NULL_SPACE_SIZE
+    e = d + 4 * m + 7 + n
+    return gains[:a], gains[a:b], gains[b:c], gains[c:d], gains[d:e], e
+
+
+@njit(cache=True, error_model="numpy")
+def task_front(chain, gains, state, targets, t, dt, q, v, force):
+    """The task frame at (q, q') and the desired motion at t: (frame, f, r_d, r_d', r_d'',
+    f_d, q_d, w_d, posture), f the measured force on the position axes."""
+    task, _, _, null_gains, ref_gains, _ = common_blocks(gains)
+    m = int(task[1])
+    frame = task_frame(chain, task, null_gains[_M_S], q, v)
+    f = np.empty(m)
+    for i in range(m):
+        f[i] = force[int(task[3 + i])]
+    r_d, v_d, a_d, f_d, quat_d, w_d, posture = desired_motion(
+        task[3:6], ref_gains, state, targets, t, dt, frame.r, frame.R, q, f)
+    return frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture
+
+
+@njit(cache=True, error_model="numpy")
+def task_back(gains, frame, tau_task, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out):
+    """Complete the command (the null-space torque and the joint limit guard added, clipped
+    to the URDF efforts, in command order) and write command, reference and the status up
+    to the scheme's own fields into ``out`` ([command n | reference 4m | status]); returns
+    the status from the scheme's first field on, for the scheme to fill."""
+    task, limits, order, null_gains, _, _ = common_blocks(gains)
+    n, m, m_o = int(task[0]), int(task[1]), int(task[2])
+    tau_null, e_o, posture_error = null_space_torque(task, null_gains, frame, quat_d, w_d, posture)
+    tau = tau_task + tau_null + joint_limit_torque(limits, null_gains, frame.q, frame.v)
+    clip_to_effort(limits, tau)
+    for k in range(n):
+        out[k] = tau[int(order[k])]
+    reference = out[n:n + 4 * m]
+    reference[:m], reference[m:2 * m], reference[2 * m:3 * m], reference[3 * m:] = r_d, v_d, a_d, f_d
+    status = out[n + 4 * m:]
+    status[:] = 0.0
+    for i in range(m):
+        status[i], status[m + i], status[2 * m + i] = frame.r[i], frame.r_dot[i], f[i]
+        status[3 * m + i], status[4 * m + i] = e[i], f_d[i] - f[i]
+    for k in range(n):
+        status[5 * m + k] = out[k]
+    k = 5 * m + n + 2                      # after compute_time_us, held
+    status[k] = frame.damping
+    status[k + 1:k + 1 + m_o] = e_o
+    k += 1 + m_o
+    if n > m + m_o:
+        status[k] = posture_error
+        k += 1
+    return status[k:]

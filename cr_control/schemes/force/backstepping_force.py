@@ -24,8 +24,7 @@ from numba import njit
 
 from cr_control.core.parameters import Param
 from cr_control.schemes.blocks import backstepping as bs
-from cr_control.schemes.blocks.task_space import split_output
-from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
 
 SIZES = bs.Sizes(5, 2)
 N, P = SIZES.n, SIZES.p

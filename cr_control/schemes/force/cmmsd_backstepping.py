@@ -26,8 +26,7 @@ from numba import njit
 
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.schemes.blocks import backstepping as bs
-from cr_control.schemes.blocks.task_space import split_output
-from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
 
 _JOINTS = Param("joint_names", ["q1", "q2"], "The chain's joints q1..qN in order (N = their "
                 "number); only q1 is read, the force goes to the last.", "string_list",

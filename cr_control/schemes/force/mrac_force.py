@@ -27,8 +27,7 @@ from numba import njit
 
 from cr_control.core.parameters import Param
 from cr_control.schemes.blocks import diophantine
-from cr_control.schemes.blocks.task_space import split_output
-from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput
+from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
 from cr_control.schemes.force.backstepping_force import _JOINTS, TRUE_THETA
 
 #: True theta_f (4.69) of case 1 for the section 4.3 design (the corrected solution).

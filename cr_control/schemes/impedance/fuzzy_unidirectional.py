@@ -20,19 +20,13 @@ from __future__ import annotations
 
 from numba import njit
 
-from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
 from cr_control.schemes.blocks.fuzzy import rule_set_2_damping
-from cr_control.schemes.blocks.unidirectional_impedance import (
-    CONTACT_PARAMETERS,
-    F_DM_AT,
-    REFERENCE_PARAMETERS,
-    SCHEME_GAINS_AT,
-    UnidirectionalImpedanceController,
-    contact_state,
-    impedance_torque,
-    normal_sliding,
-    write_status,
+from cr_control.schemes.blocks.unidirectional_impedance import normal_sliding
+from cr_control.schemes.impedance.unidirectional import (
+    UnidirectionalController,
+    unidirectional_back,
+    unidirectional_front,
 )
 
 FUZZY_PARAMETERS = [
@@ -54,30 +48,27 @@ FUZZY_PARAMETERS = [
           "DESIGN.md) (section 5.3: 1).", "nonnegative"),
 ]
 
-GAINS = Layout(**{p.name: 1 for p in FUZZY_PARAMETERS})
-_LAM, _KP, _KN, _DS, _DMED, _DB, _FMAX, _FMIN = (SCHEME_GAINS_AT + GAINS.offset(p.name)
-                                                 for p in FUZZY_PARAMETERS)
-
 
 @njit(cache=True, error_model="numpy")
-def fuzzy_unidirectional_cycle(chain, gains, t, q, v, force, out):
+def fuzzy_unidirectional_cycle(chain, gains, state, targets, t, dt, q, v, force, out):
     """One cycle of (5.7) with d_m from (5.20) and k_m = lambda d_m into ``out``."""
-    r_d, v_d, a_d, r, r_dot, J, J_inv, jdot_v, f, n, gap, f_m, f_d = contact_state(
-        chain, gains, t, q, v, force)
-    e, e_dot = r_d - r, v_d - r_dot
-    lam, f_dm = gains[_LAM], gains[F_DM_AT]
+    (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, f_dm, e, e_dot,
+     gains_contact, own) = unidirectional_front(chain, gains, state, targets, t, dt, q, v, force)
+    lam, k_p, k_n, d_s, d_med, d_b, f_max, f_min = (own[0], own[1], own[2], own[3], own[4],
+                                                    own[5], own[6], own[7])
     s = normal_sliding(n, e, e_dot, lam)
-    d_m = rule_set_2_damping(s, f_dm - f_m, f_dm - gains[_FMAX], f_dm - gains[_FMIN],
-                             gains[_KP], gains[_KN], gains[_DS], gains[_DMED], gains[_DB])
-    k_m = lam * d_m
-    tau = impedance_torque(chain, gains, q, v, J, J_inv, jdot_v, a_d, e, e_dot, f, f_d, d_m, k_m)
-    write_status(out, r_d, v_d, a_d, f_d, r, r_dot, f, e, tau, f_m, gap, n, s, d_m, k_m)
+    d_m = rule_set_2_damping(s, f_dm - f_m, f_dm - f_max, f_dm - f_min, k_p, k_n, d_s, d_med, d_b)
+    unidirectional_back(chain, gains, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
+                        f_m, f_d, e, e_dot, gains_contact, d_m, lam * d_m, lam, out)
 
 
-class FuzzyUnidirectionalController(UnidirectionalImpedanceController):
+class FuzzyUnidirectionalController(UnidirectionalController):
     """Fuzzy unidirectional force control (5.7 + 5.20) with the section 5.3 values."""
 
     scheme = "fuzzy_unidirectional"
-    PARAMETERS = REFERENCE_PARAMETERS + CONTACT_PARAMETERS + FUZZY_PARAMETERS
-    SCHEME_GAINS = GAINS
     kernel = fuzzy_unidirectional_cycle
+    OWN = tuple(p.name for p in FUZZY_PARAMETERS)
+
+    @classmethod
+    def own_parameters(cls):
+        return list(FUZZY_PARAMETERS)

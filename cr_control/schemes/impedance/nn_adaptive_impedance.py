@@ -20,10 +20,14 @@ kinematics only (a chain with zero masses, inertias and gravity), so it cannot u
 dynamics model.
 
 Centres (remark 3.4.1): an even grid over the joint positions and velocities of the
-desired motion (3.93) through the arm's inverse kinematics (branch sin(theta2) < 0, the one
-the plant starts on), widened by ``rbf_q_margin`` and ``rbf_qdot_margin`` (the margin on
-q also covers the start at r_e(0)); ``rbf_centres_per_dim`` per input dimension, so the
-q-networks have n^2 nodes and the (q, q')-networks n^4. Fixed at start-up. With the
+desired motion (3.93), found by inverse kinematics along one period (Newton steps with the
+pseudo-inverse from ``rbf_seed``, each sample from the last, so the arm's branch is kept;
+on the thesis's arm the elbow branch sin(theta2) < 0 the plant starts on), widened by
+``rbf_q_margin`` and ``rbf_qdot_margin`` (the margin on q also covers the start at
+r_e(0)); ``rbf_centres_per_dim`` per input dimension, so the q-networks of the 2-link arm
+have 4^2 nodes and the (q, q')-networks 4^4. A grid beyond ``rbf_max_nodes`` nodes (a
+7-joint arm: 4^14) is replaced by as many Halton points in the same box. Fixed at
+start-up. M_r^, C_r^ are m x m and G_r^ has m elements on an m-axis position task. With the
 printed variance sigma^2 = 50, far wider than the grid, every activation is close to 1, so
 n mostly scales the effective adaptation gain (about Gamma * n_nodes): n = 4 (16 and 256
 nodes) keeps s inside the boundary layer after the transient with a moderate start-up
@@ -32,164 +36,217 @@ per cycle.
 
 The bound d of the approximation error (3.78) is unknown; ``d`` defaults to 0.5 N, the
 order of the robust scheme's d (3.51) on the same task (0.4-0.6 N with the section 3.5.2
-bounds). The kinematics (J for tau = J^T u and r, r') come from the controller's arm
-model; its inertial parameters are used only for the published true norms |M_r|, |C_r|,
-|G_r| (``publish_true_norms``; NaN when off), never for control.
+bounds). The kinematics (J for tau = J^T u and r, r') come from the URDF; its inertial
+parameters are used only for the published true norms |M_r|, |C_r|, |G_r|
+(``publish_true_norms``; NaN when off), never for the law. On an arm with joints to spare
+(the Panda, the UR5) the orientation impedance and the posture task beside the law use the
+URDF's dynamically consistent projector and gravity (``null_space_model``, as an arm's own
+gravity compensation would; libfranka's torque interface compensates gravity itself):
+without it they hold the arm's weight with their stiffness alone (measured on the Panda's
+wiping task: 21 degrees of orientation error).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 from numba import njit
 
-from cr_control.core.linalg import matvec, spectral_norm_2x2
+from cr_control.core.linalg import matvec, spectral_norm
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError
-from cr_control.models.planar_chain import kinematics_only
+from cr_control.models import spatial_chain as sc
+from cr_control.schemes.blocks import impedance_adaptation as impedance
 from cr_control.schemes.blocks import rbf_network
-from cr_control.schemes.blocks.impedance_adaptation import ESTIMATE_FIELDS, impedance_parameters
-from cr_control.schemes.blocks.sliding_impedance import (
-    SCHEME_GAINS_AT,
-    SCHEME_STATE_AT,
-    SLIDING_STATUS_FIELDS,
-    SlidingImpedanceController,
-    sliding_back,
-    sliding_front,
-    sliding_parameters,
-)
-from cr_control.schemes.blocks.task_space import TASK_SPACE_PARAMETERS, ArmTaskSpace, inverse_2x2
-from cr_control.schemes.controller import ControlOutput
+from cr_control.schemes.blocks.references import cosine_reference
+from cr_control.schemes.blocks.sliding_impedance import sliding_parameters
+from cr_control.schemes.blocks.task_space import task_dynamics, task_frame, task_model
+from cr_control.schemes.impedance.sliding import SlidingController, sliding_back, sliding_front
 
 NN_STATUS_FIELDS = ["M_r_norm", "M_r_hat_norm", "C_r_norm", "C_r_hat_norm", "G_r_norm",
                     "G_r_hat_norm"]
 
-NN_PARAMETERS = [
-    Param("d", 0.5, "Switching gain d >= |E_M r_eq'' + E_C r_eq' + E_G| (3.78); the bound of "
-          "the approximation error is unknown (N).", "nonnegative"),
-    Param("Gamma_M", 8.0, "Adaptation gain Gamma_Mkj = Gamma_M I of the M_r weights (3.79).",
-          "positive"),
-    Param("Gamma_C", 6.0, "Adaptation gain Gamma_Ckj = Gamma_C I of the C_r weights (3.80).",
-          "positive"),
-    Param("Gamma_G", 10.0, "Adaptation gain Gamma_Gk = Gamma_G I of the G_r weights (3.81).",
-          "positive"),
-    Param("rbf_variance", 50.0, "Variance sigma^2 of the Gaussian activations (3.69).",
-          "positive", read_only=True),
-    Param("rbf_centres_per_dim", 4, "RBF centres per input dimension (>= 1): n^2 nodes in the "
-          "q-networks, n^4 in the (q, q')-networks.", "integer", read_only=True),
-    Param("rbf_q_margin", 0.3, "Centre grid: margin added to the joint-position range of the "
-          "desired motion (rad).", "nonnegative", read_only=True),
-    Param("rbf_qdot_margin", 0.5, "Centre grid: margin added to the joint-velocity range of "
-          "the desired motion (rad/s).", "nonnegative", read_only=True),
-    Param("publish_true_norms", True, "Publish |M_r|, |C_r|, |G_r| of the controller's arm "
-          "model beside the estimates (for plots only; not used in control).", "bool"),
-]
 
-_N_SLIDING = len(SLIDING_STATUS_FIELDS)
-NN_GAINS = Layout(d=1, Gamma_M=1, Gamma_C=1, Gamma_G=1, inv_variance=1)
+def nn_parameters(n: int, seed: list[float], null_space_model: bool) -> list[Param]:
+    """The network's parameters (section 3.5.3 values); ``seed`` is rbf_seed's default."""
+    return [
+        Param("d", 0.5, "Switching gain d >= |E_M r_eq'' + E_C r_eq' + E_G| (3.78); the bound of "
+              "the approximation error is unknown (N).", "nonnegative"),
+        Param("Gamma_M", 8.0, "Adaptation gain Gamma_Mkj = Gamma_M I of the M_r weights (3.79).",
+              "positive"),
+        Param("Gamma_C", 6.0, "Adaptation gain Gamma_Ckj = Gamma_C I of the C_r weights (3.80).",
+              "positive"),
+        Param("Gamma_G", 10.0, "Adaptation gain Gamma_Gk = Gamma_G I of the G_r weights (3.81).",
+              "positive"),
+        Param("rbf_variance", 50.0, "Variance sigma^2 of the Gaussian activations (3.69).",
+              "positive", read_only=True),
+        Param("rbf_centres_per_dim", 4, "RBF centres per input dimension (>= 1): per_dim^n nodes "
+              "in the q-networks, per_dim^2n in the (q, q')-networks, up to rbf_max_nodes.",
+              "integer", read_only=True),
+        Param("rbf_max_nodes", 256, "Largest network (>= 1): a bigger grid is replaced by this "
+              "many Halton points over the same box.", "integer", read_only=True),
+        Param("rbf_q_margin", 0.3, "Centre grid: margin added to the joint-position range of the "
+              "desired motion (rad).", "nonnegative", read_only=True),
+        Param("rbf_qdot_margin", 0.5, "Centre grid: margin added to the joint-velocity range of "
+              "the desired motion (rad/s).", "nonnegative", read_only=True),
+        Param("rbf_seed", seed, "Joint configuration the inverse kinematics of the desired "
+              f"motion starts from ({n} values; it chooses the arm's branch); empty = posture, "
+              "else the URDF's neutral clipped into the limits.", "vector", read_only=True),
+        Param("publish_true_norms", True, "Publish |M_r|, |C_r|, |G_r| of the URDF's model beside "
+              "the estimates (for plots only; not used in control).", "bool"),
+        Param("null_space_model", null_space_model, "The orientation and posture tasks beside "
+              "the law (arms with joints to spare) use the URDF's dynamics: a dynamically "
+              "consistent projector and gravity, as an arm's own gravity compensation would; "
+              "false = kinematic projector and no gravity. The law (3.76) never uses a model.",
+              "bool", read_only=True),
+    ]
 
 
-def _inertial_model_note(specs: list[Param]) -> list[Param]:
-    """TASK_SPACE_PARAMETERS with the inertial ones marked as used for the true norms only."""
-    out = []
-    for p in specs:
-        if p.name in ("model_link_mass", "model_link_inertia", "model_gravity"):
-            p = dataclasses.replace(p, description=p.description
-                                    + " Used only for the published true norms.")
-        out.append(p)
-    return out
+#: rbf_seed on the thesis's arm: on its elbow branch sin(theta2) < 0, near r_d(0).
+THESIS_SEED = [3.0, -2.2]
 
 
-def desired_joint_ranges(task, samples: int = 400) -> tuple[np.ndarray, np.ndarray]:
-    """(min, max) of [q, q'] over one period of the desired motion (inverse kinematics,
-    branch sin(theta2) < 0 as the plant's elbow_sign -1; q' = J^-1 r_d')."""
-    w = task.reference.frequency
-    period = 2.0 * np.pi / w if w > 0.0 else 0.0
-    rows = []
-    for t in np.linspace(0.0, period, samples):
-        r_d, v_d, _ = task.reference(t)
-        q = task.arm.inverse_kinematics(r_d, -1.0)
-        rows.append(np.concatenate([q, inverse_2x2(task.arm.jacobian(q)) @ v_d]))
-    rows = np.array(rows)
-    return rows.min(axis=0), rows.max(axis=0)
+def joint_path(model, values: dict, samples: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """[q, q'] along one period of the desired motion (rows): inverse kinematics by Newton
+    steps q += J^+ (r_d - r(q)) to 1e-12 m, each sample from the last (module docstring),
+    and q' = J^+ r_d'."""
+    chain, rows, n = model.chain, model.task[3:3 + model.m].astype(int), model.n
+    seed = np.asarray(values["rbf_seed"], dtype=float)
+    if seed.size == 0:
+        seed = np.asarray(values["posture"], dtype=float)
+    if seed.size == 0:
+        lim = model.chain_model.limits
+        seed = np.clip(np.zeros(n), lim.lower, lim.upper)
+    if seed.size != n:
+        raise ParameterError(f"rbf_seed needs {n} values, got {seed.size}")
+    zero = np.zeros(n)
+    offset = np.array(values["reference_offset"], dtype=float)
+    if values["reference_relative"]:
+        offset += sc.tip_kinematics(chain, seed, zero)[0][rows]
+    w = values["reference_frequency"]
+    times = np.linspace(0.0, 2.0 * np.pi / w, samples) if w > 0.0 else np.zeros(1)
+    q, out = seed.copy(), []
+    for t in times:
+        r_d, v_d, _ = cosine_reference(offset, values["reference_amplitude"],
+                                       values["reference_phase"], w, t)
+        for _ in range(100):
+            p, _, J6, _ = sc.tip_kinematics(chain, q, zero)
+            step = np.linalg.lstsq(J6[rows], r_d - p[rows], rcond=None)[0]
+            q = q + step
+            if np.abs(step).max() < 1e-13:
+                break
+        J = sc.tip_kinematics(chain, q, zero)[2][rows]
+        out.append(np.concatenate([q, np.linalg.lstsq(J, v_d, rcond=None)[0]]))
+    path = np.array(out)
+    return path[:, :n], path[:, n:]
 
 
 @njit(cache=True, error_model="numpy")
-def nn_adaptive_impedance_cycle(kinematic_chain, gains, state, centres_q, centres_qv, t, dt,
-                                q, v, force, out, extras_at):
+def nn_adaptive_impedance_cycle(chain, gains, state, targets, centres_q, centres_qv, t, dt, q,
+                                v, force, out):
     """One cycle of (3.76) with the weight laws (3.79-3.81) into ``out``."""
-    (r_d, v_d, a_d, f_d, r, r_dot, J, _, e, e_dot, s, v_eq, a_eq) = sliding_front(
-        kinematic_chain, gains, state, t, dt, q, v)
-    own = gains[SCHEME_GAINS_AT:]
+    (frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, e, s, v_eq, a_eq, own,
+     weights) = sliding_front(chain, gains, state, targets, t, dt, q, v, force)
     d, Gamma_M, Gamma_C, Gamma_G, inv_variance = own[0], own[1], own[2], own[3], own[4]
+    m, n = r_d.shape[0], q.shape[0]
+    mm = m * m
     n_q, n_qv = centres_q.shape[0], centres_qv.shape[0]
-    weights = state[SCHEME_STATE_AT:]
-    theta_M = weights[:4 * n_q].reshape((n_q, 4))   # columns: M_r 11, 12, 21, 22
-    theta_C = weights[4 * n_q:4 * (n_q + n_qv)].reshape((n_qv, 4))
-    theta_G = weights[4 * (n_q + n_qv):].reshape((n_q, 2))
-    qv = np.empty(4)
-    qv[:2], qv[2:] = q, v
+    theta_M = weights[:mm * n_q].reshape((n_q, mm))          # columns: M_r row-major
+    theta_C = weights[mm * n_q:mm * (n_q + n_qv)].reshape((n_qv, mm))
+    theta_G = weights[mm * (n_q + n_qv):].reshape((n_q, m))
+    qv = np.empty(2 * n)
+    qv[:n], qv[n:] = q, v
     xi_q = rbf_network.activations(centres_q, inv_variance, q)
     xi_qv = rbf_network.activations(centres_qv, inv_variance, qv)
     if dt > 0.0:
         rbf_network.adapt(theta_M, xi_q, Gamma_M * dt, np.outer(s, a_eq).ravel())   # 3.79
         rbf_network.adapt(theta_C, xi_qv, Gamma_C * dt, np.outer(s, v_eq).ravel())  # 3.80
         rbf_network.adapt(theta_G, xi_q, Gamma_G * dt, s)                            # 3.81
-    M_hat = rbf_network.output(xi_q, theta_M).reshape((2, 2))
-    C_hat = rbf_network.output(xi_qv, theta_C).reshape((2, 2))
+    M_hat = rbf_network.output(xi_q, theta_M).reshape((m, m))
+    C_hat = rbf_network.output(xi_qv, theta_C).reshape((m, m))
     G_hat = rbf_network.output(xi_q, theta_G)
     model_terms = matvec(M_hat, a_eq) + matvec(C_hat, v_eq) + G_hat
-    status = sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J,
-                          e, s, out, extras_at)
-    k = extras_at + _N_SLIDING
-    status[k:k + 6] = np.nan   # the true norms: filled by the node's Python side if wanted
-    status[k + 1] = spectral_norm_2x2(M_hat)
-    status[k + 3] = spectral_norm_2x2(C_hat)
-    status[k + 5] = math.hypot(G_hat[0], G_hat[1])
+    own_status = sliding_back(gains, state, frame, model_terms, d, f, r_d, v_d, a_d, f_d,
+                              quat_d, w_d, posture, e, s, out)
+    own_status[:] = np.nan   # the true norms: filled on the Python side if wanted
+    own_status[1] = spectral_norm(M_hat)
+    own_status[3] = spectral_norm(C_hat)
+    own_status[5] = math.sqrt(np.sum(G_hat * G_hat))
 
 
-class NNAdaptiveImpedanceController(SlidingImpedanceController):
+@njit(cache=True, error_model="numpy")
+def true_norms(chain, task, singularity_mass, q, v):
+    """|M_r|, |C_r|, |G_r| of a model-based chain at (q, q') (for the status)."""
+    M_r, C_r, G_r = task_dynamics(chain, task_frame(chain, task, singularity_mass, q, v))
+    return spectral_norm(M_r), spectral_norm(C_r), math.sqrt(np.sum(G_r * G_r))
+
+
+class NNAdaptiveImpedanceController(SlidingController):
     """Robust NN adaptive impedance control (3.76) with the section 3.5.3 gains."""
 
     scheme = "nn_adaptive_impedance"
-    PARAMETERS = (_inertial_model_note(TASK_SPACE_PARAMETERS)
-                  + sliding_parameters(D=-5.0, K=5.0, K_s=36.0, boundary_layer=0.05)
-                  + NN_PARAMETERS
-                  + impedance_parameters(A_m=20.0, B_m=40.0, P1=0.625, P2=6.5, A0=1.0,
-                                         B0=110.0, c0=[-4.0, 4.0], Q=4.0, Q_bc_star=8.0,
-                                         Q_a_star=4.0))
-    extra_status_fields = SLIDING_STATUS_FIELDS + NN_STATUS_FIELDS + ESTIMATE_FIELDS
-    SCHEME_GAINS = NN_GAINS
+    MODEL_FREE = True
 
-    def __init__(self, values: dict):
-        per_dim = values["rbf_centres_per_dim"]
-        if per_dim < 1:
-            raise ParameterError(f"rbf_centres_per_dim must be >= 1, got {per_dim}")
-        low, high = desired_joint_ranges(ArmTaskSpace(values))
-        margin = np.array([values["rbf_q_margin"]] * 2 + [values["rbf_qdot_margin"]] * 2)
-        low, high = low - margin, high + margin
-        self.centres_q = rbf_network.grid_centres(low[:2], high[:2], per_dim)
-        self.centres_qv = rbf_network.grid_centres(low, high, per_dim)
-        n_q, n_qv = len(self.centres_q), len(self.centres_qv)
-        # Initial weights are zero: M_r, C_r (4 elements each), G_r (2).
-        super().__init__(values, scheme_state=np.zeros(4 * n_q + 4 * n_qv + 2 * n_q))
-        self.kinematic_chain = kinematics_only(self.task.chain)
-        self._norms_at = self._extras_at + len(SLIDING_STATUS_FIELDS)
+    @classmethod
+    def model_free(cls, values: dict) -> bool:
+        return not values["null_space_model"]
 
-    def scheme_gain_values(self) -> dict:
+    @classmethod
+    def reference_defaults(cls) -> dict:
+        """The desired motion of section 3.5 (3.93) and the desired force."""
+        return dict(offset=[0.0, 0.35], amplitude=[0.1, 0.1], phase=[0.0, 0.0], frequency=2.0,
+                    relative=False, desired_force=[5.0, -5.0], what="3.93")
+
+    @classmethod
+    def law_parameters(cls, model, thesis):
+        m = model.m
+        return (sliding_parameters(m, D=-5.0, K=5.0, K_s=36.0, boundary_layer=0.05)
+                + nn_parameters(model.n, THESIS_SEED if thesis else [], not thesis)
+                + impedance.impedance_parameters(m, A_m=20.0, B_m=40.0, P1=0.625, P2=6.5,
+                                                 A0=1.0, B0=110.0, c0=[-4.0, 4.0] if thesis
+                                                 else [0.0] * m, Q=4.0, Q_bc_star=8.0,
+                                                 Q_a_star=4.0))
+
+    def own_status_fields(self) -> list[str]:
+        return list(NN_STATUS_FIELDS)
+
+    def own_gains_layout(self) -> Layout:
+        return Layout(d=1, Gamma_M=1, Gamma_C=1, Gamma_G=1, inv_variance=1)
+
+    def own_gain_values(self) -> dict:
         return {**self.values, "inv_variance": 1.0 / self.values["rbf_variance"]}
 
-    def compute(self, t, dt, q, v, force) -> ControlOutput:
+    def own_initial_state(self) -> np.ndarray:
+        m = self.model.m
+        return np.zeros(m * m * len(self.centres_q) + m * m * len(self.centres_qv)
+                        + m * len(self.centres_q))       # initial weights are zero
+
+    def __init__(self, values: dict):
+        for name in ("rbf_centres_per_dim", "rbf_max_nodes"):
+            if values[name] < 1:
+                raise ParameterError(f"{name} must be >= 1, got {values[name]}")
+        model = task_model(values, model_free=True)     # kinematics only
+        q_path, qdot_path = joint_path(model, values)
+        n = model.n
+        margin = np.array([values["rbf_q_margin"]] * n + [values["rbf_qdot_margin"]] * n)
+        low = np.concatenate([q_path.min(axis=0), qdot_path.min(axis=0)]) - margin
+        high = np.concatenate([q_path.max(axis=0), qdot_path.max(axis=0)]) + margin
+        per_dim, max_nodes = values["rbf_centres_per_dim"], values["rbf_max_nodes"]
+        self.centres_q = rbf_network.centres(low[:n], high[:n], per_dim, max_nodes)
+        self.centres_qv = rbf_network.centres(low, high, per_dim, max_nodes)
+        super().__init__(values)
+        self.true_model = task_model(self.values, model_free=False)
+        self._norms_at = (len(self.status_fields) - 1 - len(self._law_fields)
+                          + 2 * self.model.m + 1)
+
+    def compute(self, t, dt, q, v, force):
         vector = self._output.new()
-        nn_adaptive_impedance_cycle(self.kinematic_chain, self.gains, self.internal,
-                                    self.centres_q, self.centres_qv, t, dt, q, v, force, vector,
-                                    self._extras_at)
+        nn_adaptive_impedance_cycle(self.model.chain, self.gains, self.internal, self.targets,
+                                    self.centres_q, self.centres_qv, t, dt, q, v, force, vector)
         out = self._output.views(vector)
         if self.values["publish_true_norms"]:
-            M_r, C_r, G_r = self.task.dynamics(q, v, self.task.state(q, v))
             k = self._norms_at
-            out.status[k], out.status[k + 2] = spectral_norm_2x2(M_r), spectral_norm_2x2(C_r)
-            out.status[k + 4] = math.hypot(G_r[0], G_r[1])
+            out.status[k], out.status[k + 2], out.status[k + 4] = true_norms(
+                self.true_model.chain, self.true_model.task, self.values["singularity_mass"], q, v)
         return out

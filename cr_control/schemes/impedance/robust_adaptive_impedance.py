@@ -5,10 +5,12 @@
 
 M_r^, C_r^, G_r^ are the task-space dynamics (3.2) of the controller's model of the arm,
 which is deliberately wrong (section 3.5.2): link inertias 0.2 kg m^2 and masses 0.05 kg
-instead of 0.3 and 0.1. Compensator z (3.40, 3.43-3.45), s (3.41), r_eq (3.49-3.50), the
-boundary layer (remark 3.3.1) and the D sign convention are in
+instead of 0.3 and 0.1, i.e. ``model_inertia_scale`` 2/3 and ``model_mass_scale`` 0.5 of the
+URDF's (on any URDF arm the same scales apply to every link). Compensator z (3.40,
+3.43-3.45), s (3.41), r_eq (3.49-3.50), the boundary layer (remark 3.3.1) and the D sign convention are in
 :mod:`cr_control.schemes.blocks.sliding_impedance`; the impedance estimates follow 3.61-3.65 with
-e'^T in the A_hat law (3.48 prints e^T; DESIGN.md) through :class:`ImpedanceAdaptation`.
+e'^T in the A_hat law (3.48 prints e^T; DESIGN.md) through
+:mod:`cr_control.schemes.blocks.impedance_adaptation`.
 
 The printed bounds dM = 0.1, dC = 0.1 (3.36-3.37) do not bound the real model errors of
 this example (|M_r - M_r^| is several kg in the workspace); they are used as printed and
@@ -17,44 +19,17 @@ K_s s carries the rest, as in the thesis's simulation.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
+import numpy as np
 from numba import njit
 
-from cr_control.core.linalg import matvec
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param
-from cr_control.schemes.blocks.impedance_adaptation import ESTIMATE_FIELDS, impedance_parameters
-from cr_control.schemes.blocks.sliding_impedance import (
-    SCHEME_GAINS_AT,
-    SLIDING_STATUS_FIELDS,
-    SlidingImpedanceController,
-    sliding_back,
-    sliding_front,
-    sliding_parameters,
-)
-from cr_control.schemes.blocks.task_space import TASK_SPACE_PARAMETERS, task_dynamics
-from cr_control.schemes.controller import ControlOutput
-
-#: The controller's (wrong) estimate of the links' inertial parameters (section 3.5.2).
-_WRONG_MODEL = {
-    "model_link_inertia": ([0.2, 0.2], "Controller model: link inertias (kg m^2); section "
-                           "3.5.2 estimate (true 0.3)."),
-    "model_link_mass": ([0.05, 0.05], "Controller model: link masses (kg); section 3.5.2 "
-                        "estimate (true 0.1)."),
-}
-
-
-def _with_wrong_model(specs: list[Param]) -> list[Param]:
-    out = []
-    for p in specs:
-        if p.name in _WRONG_MODEL:
-            default, description = _WRONG_MODEL[p.name]
-            p = dataclasses.replace(p, default=default, description=description)
-        out.append(p)
-    return out
-
+from cr_control.schemes.blocks import impedance_adaptation as impedance
+from cr_control.schemes.blocks.sliding_impedance import sliding_parameters
+from cr_control.schemes.blocks.task_space import model_force
+from cr_control.schemes.impedance.sliding import SlidingController, sliding_back, sliding_front
 
 UNCERTAINTY_PARAMETERS = [
     Param("delta_M", 0.1, "Bound dM of |M_r - M_r^| (3.36), used in d (3.51).", "nonnegative"),
@@ -66,38 +41,45 @@ UNCERTAINTY_PARAMETERS = [
 ]
 
 
-ROBUST_GAINS = Layout(delta_M=1, delta_C=1, delta_G=1, delta_f=1)
-
-
 @njit(cache=True, error_model="numpy")
-def robust_adaptive_impedance_cycle(chain, gains, state, t, dt, q, v, force, out, extras_at):
-    """One cycle of (3.48) into ``out`` (task_space.split_output)."""
-    (r_d, v_d, a_d, f_d, r, r_dot, J, J_inv, e, e_dot, s, v_eq, a_eq) = sliding_front(
-        chain, gains, state, t, dt, q, v)
-    delta_M, delta_C, delta_G, delta_f = (gains[SCHEME_GAINS_AT], gains[SCHEME_GAINS_AT + 1],
-                                          gains[SCHEME_GAINS_AT + 2], gains[SCHEME_GAINS_AT + 3])
-    d = (delta_M * math.hypot(a_eq[0], a_eq[1]) + delta_C * math.hypot(v_eq[0], v_eq[1])
+def robust_adaptive_impedance_cycle(chain, gains, state, targets, t, dt, q, v, force, out):
+    """One cycle of (3.48) into ``out``."""
+    (frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, e, s, v_eq, a_eq, own,
+     _) = sliding_front(chain, gains, state, targets, t, dt, q, v, force)
+    delta_M, delta_C, delta_G, delta_f = own[0], own[1], own[2], own[3]
+    d = (delta_M * math.sqrt(np.sum(a_eq * a_eq)) + delta_C * math.sqrt(np.sum(v_eq * v_eq))
          + delta_G + delta_f)                                                      # 3.51
-    M_r, C_r, G_r = task_dynamics(chain, q, v, J_inv)
-    model_terms = matvec(M_r, a_eq) + matvec(C_r, v_eq) + G_r
-    sliding_back(gains, state, force, model_terms, d, r_d, v_d, a_d, f_d, r, r_dot, J, e, s,
-                 out, extras_at)
+    model_terms = model_force(chain, frame, a_eq, v_eq)
+    sliding_back(gains, state, frame, model_terms, d, f, r_d, v_d, a_d, f_d, quat_d, w_d,
+                 posture, e, s, out)
 
 
-class RobustAdaptiveImpedanceController(SlidingImpedanceController):
+class RobustAdaptiveImpedanceController(SlidingController):
     """Robust adaptive impedance control (3.48) with the section 3.5.2 gains."""
 
     scheme = "robust_adaptive_impedance"
-    PARAMETERS = (_with_wrong_model(TASK_SPACE_PARAMETERS)
-                  + sliding_parameters(D=-2.0, K=2.0, K_s=4.0, boundary_layer=0.05)
-                  + UNCERTAINTY_PARAMETERS
-                  + impedance_parameters(A_m=20.0, B_m=400.0, P1=1.25, P2=6.56, A0=45.0,
-                                         B0=30.0, c0=[1.0, 1.0], Q=5.0, Q_bc_star=1.5))
-    extra_status_fields = SLIDING_STATUS_FIELDS + ESTIMATE_FIELDS
-    SCHEME_GAINS = ROBUST_GAINS
+    kernel = robust_adaptive_impedance_cycle
+    ROBOT_DEFAULTS = {
+        "model_mass_scale": (0.5, "The controller's model: every link mass times this; section "
+                             "3.5.2 estimates 0.05 kg for the true 0.1 kg."),
+        "model_inertia_scale": (0.2 / 0.3, "The controller's model: every rotational inertia "
+                                "times this; section 3.5.2 estimates 0.2 kg m^2 for the true 0.3."),
+    }
 
-    def compute(self, t, dt, q, v, force) -> ControlOutput:
-        out = self._output.new()
-        robust_adaptive_impedance_cycle(self.task.chain, self.gains, self.internal, t, dt, q, v,
-                                        force, out, self._extras_at)
-        return self._output.views(out)
+    @classmethod
+    def reference_defaults(cls) -> dict:
+        """The desired motion of section 3.5 (3.93) and the desired force."""
+        return dict(offset=[0.0, 0.35], amplitude=[0.1, 0.1], phase=[0.0, 0.0], frequency=2.0,
+                    relative=False, desired_force=[5.0, -5.0], what="3.93")
+
+    @classmethod
+    def law_parameters(cls, model, thesis):
+        m = model.m
+        return (sliding_parameters(m, D=-2.0, K=2.0, K_s=4.0, boundary_layer=0.05)
+                + UNCERTAINTY_PARAMETERS
+                + impedance.impedance_parameters(m, A_m=20.0, B_m=400.0, P1=1.25, P2=6.56,
+                                                 A0=45.0, B0=30.0, c0=[1.0] * m, Q=5.0,
+                                                 Q_bc_star=1.5))
+
+    def own_gains_layout(self) -> Layout:
+        return Layout(delta_M=1, delta_C=1, delta_G=1, delta_f=1)

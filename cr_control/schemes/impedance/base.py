@@ -1,0 +1,229 @@
+"""What the five impedance schemes share: one base, thin per-law subclasses (as FZI's
+cartesian_controllers).
+
+A :class:`TaskSpaceController` runs on any serial arm from its URDF
+(:mod:`cr_control.schemes.blocks.task_space`): the robot parameters name the chain, the
+task rows follow from it (the position axes the tip can move; the rotation axes it can turn
+besides), and every m x m gain of the law is sized by it. Each cycle is one compiled call:
+the common front (task frame, desired motion) -> the scheme's law -> the common back
+(null-space orientation and posture, joint limit guard, effort clip, output vector).
+
+Defaults. On the thesis's arm (the class's default ``urdf_file`` and no
+``robot_description``) every parameter defaults to the thesis's value, so that case is
+the thesis's run. On any other robot the laws keep the thesis's gains (m x m, the same
+diagonal), the reference holds the start pose (``reference_relative`` with zero
+amplitude) and the desired force is zero until a target arrives: a controller started on
+an unknown robot holds still.
+
+Targets: :meth:`TaskSpaceController.set_target_pose` and :meth:`set_target_wrench` (the
+node's ``~/target_pose`` and ``~/target_wrench``) take effect from the next cycle
+(:mod:`cr_control.schemes.blocks.references`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cr_control.core.packing import Layout
+from cr_control.core.parameters import Param, ParameterError, resolve
+from cr_control.schemes.blocks import references
+from cr_control.schemes.blocks.references import TARGETS, reference_gains, reference_state
+from cr_control.schemes.blocks.task_space import (
+    NULL_SPACE_GAINS,
+    NULL_SPACE_PARAMETERS,
+    ROBOT_PARAMETERS,
+    TaskModel,
+    common_gains_layout,
+    status_fields,
+    task_model,
+)
+from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, ControlOutput, KernelOutput
+
+#: joint_names of a task-space scheme: the chain's joints unless given (then their order is
+#: the command order, e.g. a forward_command_controller's ``joints``).
+JOINT_NAMES = Param("joint_names", [], "Joints commanded, in the order of the commands and of "
+                    "forward_command_topic's array; empty = the chain's joints from base_link to "
+                    "tip_link (a permutation of them is allowed).", "string_list", read_only=True)
+
+
+class TaskSpaceController(Controller):
+    """A task-space law on any URDF arm (module docstring).
+
+    Subclasses set ``scheme``, ``ROBOT_DEFAULTS`` (thesis values of the robot parameters),
+    :meth:`reference_defaults`, :meth:`law_parameters` (thesis defaults, m axes), the
+    scheme's own status fields (:meth:`law_status_fields`), its gains and state
+    (:meth:`law_gains_layout`, :meth:`law_gain_values`, :meth:`law_initial_state`) and
+    ``kernel(chain, gains, state, targets, t, dt, q, v, force, out)``.
+    """
+
+    JOINT_NAMES_PARAMETER = JOINT_NAMES
+    #: Overrides of ROBOT_PARAMETERS' defaults (name -> (default, description)).
+    ROBOT_DEFAULTS: dict[str, tuple[Any, str]] = {}
+    #: True for a law that must not use a model of the arm's dynamics (3.76).
+    MODEL_FREE = False
+    #: False for a law with its own desired force (5.9: f_dm along the normal).
+    HAS_DESIRED_FORCE = True
+    kernel = None
+
+    # -- parameters ------------------------------------------------------------------------
+    @classmethod
+    def robot_parameters(cls) -> list[Param]:
+        """ROBOT_PARAMETERS with this scheme's thesis defaults."""
+        out = []
+        for p in ROBOT_PARAMETERS:
+            if p.name in cls.ROBOT_DEFAULTS:
+                default, description = cls.ROBOT_DEFAULTS[p.name]
+                p = Param(p.name, default, description, p.kind, p.size, p.read_only, p.choices)
+            out.append(p)
+        return out
+
+    @classmethod
+    def robot_values(cls, given: dict[str, Any] | None) -> dict[str, Any]:
+        """The robot parameters from ``given`` (any superset; defaults where absent)."""
+        specs = cls.robot_parameters()
+        names = {p.name for p in specs}
+        return resolve(specs, {k: v for k, v in (given or {}).items() if k in names})
+
+    @classmethod
+    def is_thesis_robot(cls, robot: dict[str, Any]) -> bool:
+        """True for the thesis's arm: no robot_description and the default urdf_file."""
+        default = next(p.default for p in cls.robot_parameters() if p.name == "urdf_file")
+        return not robot["robot_description"].strip() and robot["urdf_file"] == default
+
+    @classmethod
+    def parameters(cls, given: dict[str, Any] | None = None) -> list[Param]:
+        """Every parameter on the robot ``given`` names (the thesis's arm by default)."""
+        robot = cls.robot_values(given)
+        model = task_model(robot, cls.MODEL_FREE)
+        thesis = cls.is_thesis_robot(robot)
+        common = [JOINT_NAMES if p.name == "joint_names" else p for p in COMMON_PARAMETERS]
+        return (common + cls.robot_parameters() + cls.reference_parameters(model.m, thesis)
+                + NULL_SPACE_PARAMETERS + cls.law_parameters(model, thesis))
+
+    @classmethod
+    def reference_parameters(cls, m: int, thesis: bool) -> list[Param]:
+        """The desired motion's parameters: the thesis's path on its arm, else hold."""
+        if thesis:
+            return references.reference_parameters(m, **cls.reference_defaults())
+        zeros = [0.0] * m
+        return references.reference_parameters(m, zeros, zeros, zeros, 0.0, True,
+                                               zeros if cls.HAS_DESIRED_FORCE else None,
+                                               "default: hold the start position")
+
+    @classmethod
+    def reference_defaults(cls) -> dict[str, Any]:
+        """Keyword arguments of references.reference_parameters for the thesis's arm."""
+        raise NotImplementedError
+
+    @classmethod
+    def law_parameters(cls, model: TaskModel, thesis: bool) -> list[Param]:
+        """The law's own parameters on ``model`` (thesis defaults)."""
+        return []
+
+    @classmethod
+    def model_free(cls, values: dict) -> bool:
+        """Whether the cycle's frame must carry no dynamics model (M = I, no gravity)."""
+        return cls.MODEL_FREE
+
+    # -- the law's packed gains, state and status ------------------------------------------
+    def law_status_fields(self) -> list[str]:
+        """The scheme's own status fields (after the task-space ones)."""
+        return []
+
+    def law_gains_layout(self) -> Layout:
+        """Layout of the scheme's own packed gains (empty by default)."""
+        return Layout()
+
+    def law_gain_values(self) -> dict[str, Any]:
+        """Values of the scheme's own packed gains by name (default: its parameters)."""
+        return self.values
+
+    def law_initial_state(self) -> np.ndarray:
+        """The scheme's own internal state at t = 0 (none by default)."""
+        return np.zeros(0)
+
+    # -- construction --------------------------------------------------------------------------
+    def __init__(self, values: dict):
+        self.model = task_model(values, self.model_free(values))
+        chain_joints = list(self.model.joint_names)
+        given = list(values["joint_names"])
+        if given and sorted(given) != sorted(chain_joints):
+            raise ParameterError(f"joint_names {given} are not the chain's joints {chain_joints} "
+                                 f"({values['base_link']} -> {values['tip_link']})")
+        values = {**values, "joint_names": given or chain_joints}
+        self._check_sizes(values)
+        self.reference_fields, base_status = status_fields(self.model)
+        self._law_fields = self.law_status_fields()
+        self._status = base_status + self._law_fields
+        super().__init__(values)
+        n, m = self.model.n, self.model.m
+        self.command_order = np.array([chain_joints.index(j) for j in values["joint_names"]],
+                                      dtype=float)
+        self.common = common_gains_layout(n, m)
+        self.law_gains = self.law_gains_layout()
+        self.gains = np.zeros(self.common.size + self.law_gains.size)
+        self.pack_gains()
+        self.reference_state = reference_state(m, n)
+        self.internal = np.concatenate([np.zeros(self.reference_state.size),
+                                        self.law_initial_state()])
+        self.targets = np.zeros(TARGETS.size)
+        self.targets[TARGETS.offset("quaternion")] = 1.0
+        self._output = KernelOutput(self)
+        self._kernel = type(self).kernel
+
+    def status_field_names(self) -> list[str]:
+        return self._status
+
+    def read_joint_names(self) -> list[str]:
+        """The state is read in the chain's order (the node reorders by name)."""
+        return list(self.model.joint_names)
+
+    def _check_sizes(self, values: dict) -> None:
+        posture = values.get("posture", [])
+        if len(posture) not in (0, self.model.n):
+            raise ParameterError(f"posture needs {self.model.n} values (one per chain joint "
+                                 f"{list(self.model.joint_names)}) or none, got {len(posture)}")
+
+    def pack_gains(self) -> None:
+        """Copy the parameter values into the packed gains the kernel reads."""
+        values, n, m = self.values, self.model.n, self.model.m
+        common = self.common
+        common.view(self.gains, "task")[:] = self.model.task
+        common.view(self.gains, "limits")[:] = self.model.limits
+        common.view(self.gains, "order")[:] = self.command_order
+        NULL_SPACE_GAINS.pack(values, common.view(self.gains, "null_space"))
+        posture = values["posture"]
+        reference_gains(m, n).pack({
+            **values, "reference_relative": float(values["reference_relative"]),
+            "desired_force": values.get("desired_force", np.zeros(m)),
+            "posture": posture if len(posture) else np.zeros(n),
+            "posture_given": float(len(posture) > 0)}, common.view(self.gains, "reference"))
+        self.pack_law_gains(self.gains[common.size:])
+
+    def pack_law_gains(self, out: np.ndarray) -> None:
+        """Pack the scheme's own gains into ``out`` (default: law_gains_layout by name)."""
+        self.law_gains.pack(self.law_gain_values(), out)
+
+    # -- targets ---------------------------------------------------------------------------------
+    def set_target_pose(self, position: np.ndarray, quaternion: np.ndarray) -> None:
+        """A new target pose (base frame; quaternion [w, x, y, z]), from the next cycle."""
+        t = self.targets
+        t[TARGETS.offset("position"):TARGETS.offset("position") + 3] = position
+        q = np.asarray(quaternion, dtype=float)
+        t[TARGETS.offset("quaternion"):TARGETS.offset("quaternion") + 4] = q / np.linalg.norm(q)
+        t[TARGETS.offset("pose_seq")] += 1.0
+
+    def set_target_wrench(self, force: np.ndarray) -> None:
+        """A new desired contact force (base frame, N), from the next cycle."""
+        t = self.targets
+        t[TARGETS.offset("force"):TARGETS.offset("force") + 3] = force
+        t[TARGETS.offset("wrench_seq")] += 1.0
+
+    # -- the cycle ---------------------------------------------------------------------------------
+    def compute(self, t, dt, q, v, force) -> ControlOutput:
+        out = self._output.new()
+        self._kernel(self.model.chain, self.gains, self.internal, self.targets, t, dt, q, v,
+                     force, out)
+        return self._output.views(out)

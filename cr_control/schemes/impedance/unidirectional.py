@@ -1,0 +1,80 @@
+"""What the chapter 5 schemes share: the controller (5.7) on a known unilateral surface
+(:mod:`cr_control.schemes.blocks.unidirectional_impedance`), with the damping d_m and the
+stiffness k_m chosen per cycle by the scheme (fixed, 5.7; fuzzy, 5.20)."""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from cr_control.core.linalg import tmatvec
+from cr_control.core.packing import Layout
+from cr_control.schemes.blocks import unidirectional_impedance as contact
+from cr_control.schemes.blocks.references import TARGETS
+from cr_control.schemes.blocks.task_space import common_blocks, model_force, task_back, task_front
+from cr_control.schemes.impedance.base import TaskSpaceController
+
+_WRENCH_SEQ = TARGETS.offset("wrench_seq")
+
+
+@njit(cache=True, error_model="numpy")
+def unidirectional_front(chain, gains, state, targets, t, dt, q, v, force):
+    """The common front, then the contact state: (frame, f, r_d, v_d, a_d, quat_d, w_d,
+    posture, n, gap, f_m, f_d, f_dm, e, e', the contact gains, the scheme's own gains)."""
+    frame, f, r_d, v_d, a_d, f_d_ref, quat_d, w_d, posture = task_front(
+        chain, gains, state, targets, t, dt, q, v, force)
+    m = r_d.shape[0]
+    law = gains[common_blocks(gains)[5]:]
+    size = contact.contact_gains_size(m)
+    gains_contact = law[:size]
+    n, gap, f_m, f_d, f_dm = contact.contact_state(gains_contact, frame.r, f, f_d_ref,
+                                                   targets[_WRENCH_SEQ] != 0.0)
+    return (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, f_dm,
+            r_d - frame.r, v_d - frame.r_dot, gains_contact, law[size:])
+
+
+@njit(cache=True, error_model="numpy")
+def unidirectional_back(chain, gains, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
+                        f_m, f_d, e, e_dot, gains_contact, d_m, k_m, lam, out):
+    """tau of (5.7) with d_m, k_m; the output vector and the contact status (s with lambda)."""
+    u = contact.impedance_acceleration(gains_contact, a_d, e, e_dot, f, f_d, d_m, k_m)
+    tau = tmatvec(frame.J, model_force(chain, frame, u, frame.r_dot) - f)
+    extras = task_back(gains, frame, tau, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out)
+    s = contact.normal_sliding(n, e, e_dot, lam)
+    contact.write_contact_status(extras, f_m, gap, n, s, d_m, k_m)
+
+
+class UnidirectionalController(TaskSpaceController):
+    """The chapter 5 schemes on any URDF arm; subclasses add their own gains (``OWN``:
+    parameter name -> packed size 1) and kernel."""
+
+    HAS_DESIRED_FORCE = False
+    ROBOT_DEFAULTS = {"urdf_file": ("two_link_arm_ch5.urdf", "URDF file: a path, a file of "
+                                    "cr_control's config directory, or package://PKG/path. "
+                                    "Default: the chapter 5 arm (0.6 m links, section 5.3).")}
+    OWN: tuple[str, ...] = ()
+
+    @classmethod
+    def reference_defaults(cls) -> dict:
+        """The desired motion of section 5.3 (5.21-5.22) on the circle."""
+        return dict(offset=[0.8, -0.4], amplitude=[0.3, -0.3], phase=[-math.pi / 2, 0.0],
+                    frequency=1.0, relative=False, desired_force=None, what="5.21-5.22")
+
+    @classmethod
+    def law_parameters(cls, model, thesis):
+        return contact.contact_parameters(model.m, thesis) + cls.own_parameters()
+
+    @classmethod
+    def own_parameters(cls):
+        return []
+
+    def law_status_fields(self):
+        return contact.contact_status_fields(self.model.position_axes)
+
+    def law_gains_layout(self):
+        m = self.model.m
+        return Layout(**contact.contact_gains(m).shapes, **dict.fromkeys(self.OWN, 1))
+
+    def law_gain_values(self):
+        return contact.contact_gain_values(self.values)
