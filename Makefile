@@ -5,7 +5,9 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+ROBOTS_STAMP := $(VENV)/.robots-installed
 SCHEME ?= adaptive_impedance
+ROBOT ?=
 DURATION ?= 10
 MODE ?= realtime
 OUT ?= sessions
@@ -15,6 +17,11 @@ DEMO_ARGS ?=
 
 venv: $(STAMP)
 
+## The robots' URDFs (example-robot-data, 131 MB): for ROBOT=... and the tests.
+$(ROBOTS_STAMP): $(STAMP) requirements-robots.txt
+	$(BIN)/pip install --quiet -r requirements-robots.txt -c constraints.txt
+	touch $(ROBOTS_STAMP)
+
 $(STAMP): requirements.txt constraints.txt setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
@@ -22,13 +29,14 @@ $(STAMP): requirements.txt constraints.txt setup.py
 	$(BIN)/pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
-## A recorded, analysed 10 s session: plant, controller and recorder over ROS 2 at 1 kHz.
-demo: $(STAMP)
+## A recorded, analysed 10 s session: plant, controller and recorder over ROS 2 at 1 kHz;
+## ROBOT=panda (or ur5): the scheme on that arm's URDF, wiping a table.
+demo: $(STAMP) $(if $(ROBOT),$(ROBOTS_STAMP))
 	$(BIN)/python -m cr_control.tools.warm_up $(SCHEME)
-	$(BIN)/cr_session --scheme $(SCHEME) --duration $(DURATION) --mode $(MODE) --out $(OUT) $(DEMO_ARGS)
+	$(BIN)/cr_session --scheme $(SCHEME) --duration $(DURATION) --mode $(MODE) --out $(OUT) $(if $(ROBOT),--robot $(ROBOT)) $(DEMO_ARGS)
 
 ## Lint, compile the kernels once (numba caches them beside the sources), the whole test suite.
-test: $(STAMP)
+test: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m cr_control.tools.warm_up
 	$(BIN)/python -m pytest -q test
@@ -40,7 +48,7 @@ test: $(STAMP)
 ## 6-12 min; BENCH_ARGS e.g. "--repeat 1 --duration 5 --skip-lockstep" for a quick look.
 BENCH_ARGS ?= --repeat 3
 BENCH_JSON ?= $(OUT)/benchmark.json
-benchmark: $(STAMP)
+benchmark: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/cr_benchmark --json $(BENCH_JSON) $(BENCH_ARGS)
 
 clean:

@@ -52,6 +52,8 @@ ROBOTS = {
 WIPE_RADIUS = 0.05
 WIPE_FREQUENCY = 1.0
 WIPE_FORCE = 10.0
+#: The desired force is ramped in over this time (s): the tool starts touching at zero force.
+FORCE_RAMP_TIME = 1.0
 TABLE_STIFFNESS = 5000.0
 TABLE_DAMPING = 20.0
 GRAVITY = [0.0, 0.0, -9.81]
@@ -60,6 +62,12 @@ GRAVITY = [0.0, 0.0, -9.81]
 #: is ~40 N at the tip, beyond what K_s s can carry (measured on the Panda: 55 N pressed
 #: instead of 10, 16 degrees of orientation error).
 ROBUST_MODEL = {"model_mass_scale": 0.9, "model_inertia_scale": 0.9, "delta_G": 5.0}
+#: The NN scheme's adaptation gains on a robot. Section 3.5.3's (8, 6, 10) adapt the 256-node
+#: networks of these arms far faster than the 16-node one of the thesis arm; under the plant
+#: node's torque-rate limit (libfranka's 1000 N m/s) the learning transient then grows
+#: unstable (measured: the Panda pressed 1700 N within 1 s, and 1/10 of them still diverges);
+#: these keep it stable on both arms (90 and 67 commands clipped in the first second).
+NN_GAINS = {"Gamma_M": 0.01, "Gamma_C": 0.01, "Gamma_G": 1.0}
 #: The task-space schemes (chapters 3 and 5) that run on a robot.
 TASK_SPACE_SCHEMES = ("adaptive_impedance", "robust_adaptive_impedance", "nn_adaptive_impedance",
                       "impedance", "fuzzy_unidirectional")
@@ -100,7 +108,8 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
     values = {**robot_parameters(r), "reference_relative": True,
               "reference_offset": [a, 0.0, 0.0], "reference_amplitude": [a, a, 0.0],
               "reference_phase": [0.0, -math.pi / 2, 0.0],
-              "reference_frequency": WIPE_FREQUENCY, "posture": list(r.home)}
+              "reference_frequency": WIPE_FREQUENCY, "posture": list(r.home),
+              "force_ramp_time": FORCE_RAMP_TIME}
     if scheme in ("impedance", "fuzzy_unidirectional"):
         values.update(f_dm=WIPE_FORCE, surface="plane", surface_normal=[0.0, 0.0, 1.0],
                       surface_centre=[float(x) for x in home_tip(r)])
@@ -110,5 +119,5 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
     if scheme == "robust_adaptive_impedance":
         values.update(ROBUST_MODEL)
     if scheme == "nn_adaptive_impedance":
-        values["rbf_seed"] = list(r.home)
+        values.update(NN_GAINS, rbf_seed=list(r.home))
     return values

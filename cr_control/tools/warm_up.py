@@ -10,11 +10,49 @@ start-up, and the controller node warms its scheme up before it subscribes.
 
 from __future__ import annotations
 
+import hashlib
 import sys
 import time
+from pathlib import Path
 
 from cr_control.schemes.registry import SCHEMES, default_scenario, make_controller
 from cr_sim.plants.registry import make_plant
+
+#: The packages whose numba kernels are cached beside their sources.
+KERNEL_PACKAGES = ("cr_control", "cr_sim")
+DIGEST_NAME = "kernel-sources.sha256"
+
+
+def _package_dirs() -> list[Path]:
+    return [Path(__import__(name).__file__).resolve().parent for name in KERNEL_PACKAGES]
+
+
+def clear_stale_kernels() -> bool:
+    """Delete every cached kernel if any source file changed since the caches were made.
+
+    numba keys a cached kernel on its own module's file only: a kernel that calls a
+    function of another module that has changed since (a building block) would be loaded
+    stale. One digest of all the packages' sources, kept beside them, tells; returns True
+    if caches were cleared. Nothing happens where the packages are read-only."""
+    dirs = _package_dirs()
+    digest = hashlib.sha256()
+    for d in dirs:
+        for path in sorted(d.rglob("*.py")):
+            digest.update(f"{d.name}/{path.relative_to(d).as_posix()}".encode())
+            digest.update(path.read_bytes())
+    marker = dirs[0] / "__pycache__" / DIGEST_NAME
+    if marker.exists() and marker.read_text() == digest.hexdigest():
+        return False
+    cleared = False
+    try:
+        for cache in (p for d in dirs for pattern in ("*.nbi", "*.nbc") for p in d.rglob(pattern)):
+            cache.unlink()
+            cleared = True
+        marker.parent.mkdir(exist_ok=True)
+        marker.write_text(digest.hexdigest())
+    except OSError:
+        return cleared
+    return cleared
 
 
 def warm_up(schemes: list[str] | None = None, progress=print) -> float:
@@ -38,6 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         print(f"warm_up: unknown scheme(s) {unknown}; known: {sorted(SCHEMES)}", file=sys.stderr)
         return 2
+    if clear_stale_kernels():
+        print("sources changed since the kernels were cached: caches cleared")
     print("compiling / loading the compiled kernels (once per source change):")
     print(f"done in {warm_up(args or None):.1f} s")
     return 0

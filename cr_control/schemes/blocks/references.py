@@ -20,7 +20,9 @@ Three sources, one after the other:
    orientation (the tip's orientation at the first state until a target arrives) follows
    the same filter on SO(3): w_d' = w_f^2 log(q_target q_d^-1) - 2 w_f w_d, q_d advanced by
    exp(w_d dt).
-3. The desired force f_d: ``desired_force``, or the latest ``~/target_wrench``. A force
+3. The desired force f_d: ``desired_force``, or the latest ``~/target_wrench``, ramped in
+   over ``force_ramp_time`` from the first state (a robot that starts touching the table
+   must not be kicked into it: the admittance below would start at (f_d - f)/m_a). A force
    admittance on the reference makes the position laws of chapter 3 (which regulate
    position, the force following from the environment: 3.5) hold a force: along
    n_f = f_d/|f_d| the reference is moved by delta,
@@ -71,6 +73,9 @@ def reference_parameters(m: int, offset: list[float], amplitude: list[float],
         Param("reference_relative", relative, "r_d's offset is relative to the tip position at "
               "the first state (true) or absolute in the base frame (false).", "bool"),
         *force,
+        Param("force_ramp_time", 0.0, "The desired force is ramped in over this time from the "
+              "first state (s; smoothstep 3 s^2 - 2 s^3, no jump in f_d or its rate); 0 = at "
+              "once, as in the thesis.", "nonnegative"),
         Param("target_filter_frequency", 5.0, "Targets from ~/target_pose are followed through "
               "a critically damped filter of this natural frequency (rad/s).", "positive"),
         Param("force_admittance_mass", 1.0, "Force admittance on the reference: mass m_a "
@@ -93,8 +98,8 @@ def reference_gains(m: int, n: int) -> Layout:
     posture comes here too: it is held like the start pose)."""
     return Layout(reference_offset=m, reference_amplitude=m, reference_phase=m,
                   reference_frequency=1, reference_relative=1, desired_force=m,
-                  target_filter_frequency=1, force_admittance_mass=1, force_admittance_damping=1,
-                  force_admittance_limit=1, posture=n, posture_given=1)
+                  force_ramp_time=1, target_filter_frequency=1, force_admittance_mass=1,
+                  force_admittance_damping=1, force_admittance_limit=1, posture=n, posture_given=1)
 
 
 def reference_state(m: int, n: int) -> Layout:
@@ -121,6 +126,13 @@ def cosine_reference(offset, amplitude, phase, w, t):
         v[i] = amplitude[i] * w * s
         a[i] = amplitude[i] * w * w * c
     return r, v, a
+
+
+@njit(cache=True, error_model="numpy")
+def smoothstep(x):
+    """3 x^2 - 2 x^3 on [0, 1] (0 before, 1 after): a ramp with zero slope at both ends."""
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 @njit(cache=True, error_model="numpy")
@@ -162,7 +174,9 @@ def _rows_of(x, rows, m):
 
 @njit(cache=True, error_model="numpy")
 def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
-    """(r_d, r_d', r_d'', f_d, q_d, w_d, posture) at time t (module docstring).
+    """(r_d, r_d', r_d'', f_d, q_d, w_d, posture, ramp) at time t (module docstring); ramp
+    is the force ramp's factor now (1 once ramped in), for laws with a desired force of
+    their own.
 
     ``rows`` are the position rows of the task, ``gains`` / ``state`` the packed
     reference_gains / reference_state blocks, ``targets`` the TARGETS vector; r, R, q are the
@@ -170,9 +184,9 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
     measured force on the task rows (for the admittance)."""
     m, n = r.shape[0], q.shape[0]
     o_off, o_amp, o_ph = 0, m, 2 * m
-    o_w, o_rel, o_fd = 3 * m, 3 * m + 1, 3 * m + 2
-    o_wf, o_ma, o_da, o_lim = 4 * m + 2, 4 * m + 3, 4 * m + 4, 4 * m + 5
-    o_post, o_post_given = 4 * m + 6, 4 * m + 6 + n
+    o_w, o_rel, o_fd, o_ramp = 3 * m, 3 * m + 1, 3 * m + 2, 4 * m + 2
+    o_wf, o_ma, o_da, o_lim = 4 * m + 3, 4 * m + 4, 4 * m + 5, 4 * m + 6
+    o_post, o_post_given = 4 * m + 7, 4 * m + 7 + n
     s_r0, s_q0, s_qs = 1, 1 + m, 5 + m
     s_seq, s_rf, s_vf = 5 + m + n, 6 + m + n, 6 + 2 * m + n
     s_qf, s_wf, s_delta = 6 + 3 * m + n, 10 + 3 * m + n, 13 + 3 * m + n
@@ -210,6 +224,8 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
     f_d = gains[o_fd:o_fd + m].copy()
     if targets[_T_WRENCH_SEQ] != 0.0:
         f_d = _rows_of(targets[_T_FORCE:_T_FORCE + 3], rows, m)
+    ramp = smoothstep(t / gains[o_ramp]) if gains[o_ramp] > 0.0 else 1.0
+    f_d *= ramp
     d_a = gains[o_da]
     f_norm = math.sqrt(np.sum(f_d * f_d))
     if d_a > 0.0 and f_norm > 0.0:
@@ -225,4 +241,4 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
         v_d -= delta_dot * n_f
         a_d -= (push - d_a * delta_dot) / m_a * n_f
     posture = gains[o_post:o_post + n] if gains[o_post_given] > 0.0 else state[s_qs:s_qs + n]
-    return r_d, v_d, a_d, f_d, quat_d, w_d, posture.copy()
+    return r_d, v_d, a_d, f_d, quat_d, w_d, posture.copy(), ramp

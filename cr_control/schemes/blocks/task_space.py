@@ -420,23 +420,24 @@ def common_blocks(gains):
     b = a + 4 * n
     c = b + n
     d = c + NULL_SPACE_SIZE
-    e = d + 4 * m + 7 + n
+    e = d + 4 * m + 8 + n      # references.reference_gains(m, n).size
     return gains[:a], gains[a:b], gains[b:c], gains[c:d], gains[d:e], e
 
 
 @njit(cache=True, error_model="numpy")
 def task_front(chain, gains, state, targets, t, dt, q, v, force):
     """The task frame at (q, q') and the desired motion at t: (frame, f, r_d, r_d', r_d'',
-    f_d, q_d, w_d, posture), f the measured force on the position axes."""
+    f_d, q_d, w_d, posture, ramp), f the measured force on the position axes, ramp the force
+    ramp's factor."""
     task, _, _, null_gains, ref_gains, _ = common_blocks(gains)
     m = int(task[1])
     frame = task_frame(chain, task, null_gains[_M_S], q, v)
     f = np.empty(m)
     for i in range(m):
         f[i] = force[int(task[3 + i])]
-    r_d, v_d, a_d, f_d, quat_d, w_d, posture = desired_motion(
+    r_d, v_d, a_d, f_d, quat_d, w_d, posture, ramp = desired_motion(
         task[3:6], ref_gains, state, targets, t, dt, frame.r, frame.R, q, f)
-    return frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture
+    return frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, ramp
 
 
 @njit(cache=True, error_model="numpy")

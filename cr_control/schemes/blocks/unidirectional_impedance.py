@@ -94,12 +94,12 @@ def contact_status_fields(axes: tuple[str, ...]) -> list[str]:
 
 
 @njit(cache=True, error_model="numpy")
-def contact_state(contact, r, f, f_d_given, wrench_target):
+def contact_state(contact, r, f, f_d_given, wrench_target, ramp):
     """(n, gap, f_m, f_d, f_dm): the outward normal at the tool (module docstring), the gap,
-    the measured force along n, the desired force (f_dm n, or ``f_d_given`` when a target
-    wrench is in force, its normal part then being f_dm)."""
+    the measured force along n, the desired force (ramp f_dm n, or ``f_d_given`` (ramped
+    already) when a target wrench is in force, its normal part then being f_dm)."""
     m = r.shape[0]
-    f_dm = contact[0]
+    f_dm = ramp * contact[0]
     c = contact[2:2 + m]
     n = np.empty(m)
     if contact[1] == PLANE:

@@ -27,7 +27,7 @@ from cr_control.schemes.impedance.base import TaskSpaceController
 @njit(cache=True, error_model="numpy")
 def adaptive_impedance_cycle(chain, gains, state, targets, t, dt, q, v, force, out):
     """One cycle of (3.32) into ``out`` (see task_space.task_back)."""
-    frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture = task_front(
+    frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, _ = task_front(
         chain, gains, state, targets, t, dt, q, v, force)
     law_gains = gains[common_blocks(gains)[5]:]
     law_state = state[reference_state_size(r_d.shape[0], q.shape[0]):]

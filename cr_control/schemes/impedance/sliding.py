@@ -41,7 +41,7 @@ def _sizes(m):
 def sliding_front(chain, gains, state, targets, t, dt, q, v, force):
     """The common front, the impedance estimates and the compensator: (frame, f, r_d, r_d',
     r_d'', f_d, q_d, w_d, posture, e, s, r_eq', r_eq'', the scheme's own gains and state)."""
-    frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture = task_front(
+    frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, _ = task_front(
         chain, gains, state, targets, t, dt, q, v, force)
     m, n = r_d.shape[0], q.shape[0]
     law_gains = gains[common_blocks(gains)[5]:]

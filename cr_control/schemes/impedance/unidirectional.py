@@ -22,14 +22,14 @@ _WRENCH_SEQ = TARGETS.offset("wrench_seq")
 def unidirectional_front(chain, gains, state, targets, t, dt, q, v, force):
     """The common front, then the contact state: (frame, f, r_d, v_d, a_d, quat_d, w_d,
     posture, n, gap, f_m, f_d, f_dm, e, e', the contact gains, the scheme's own gains)."""
-    frame, f, r_d, v_d, a_d, f_d_ref, quat_d, w_d, posture = task_front(
+    frame, f, r_d, v_d, a_d, f_d_ref, quat_d, w_d, posture, ramp = task_front(
         chain, gains, state, targets, t, dt, q, v, force)
     m = r_d.shape[0]
     law = gains[common_blocks(gains)[5]:]
     size = contact.contact_gains_size(m)
     gains_contact = law[:size]
     n, gap, f_m, f_d, f_dm = contact.contact_state(gains_contact, frame.r, f, f_d_ref,
-                                                   targets[_WRENCH_SEQ] != 0.0)
+                                                   targets[_WRENCH_SEQ] != 0.0, ramp)
     return (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, f_dm,
             r_d - frame.r, v_d - frame.r_dot, gains_contact, law[size:])
 
