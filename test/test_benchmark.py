@@ -17,6 +17,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from cr_control.core import topics
 from cr_control.core.ros_env import DOMAIN_SPAN, FIRST_DOMAIN
 from cr_control.tools import benchmark as bm
+from cr_control.tools import echo_pair
 from cr_control.tools.echo_pair import parse_result
 
 # /proc/<pid>/stat of a process whose name holds a space and a parenthesis.
@@ -126,9 +127,10 @@ def test_json_safe_and_domain_ids():
                    FIRST_DOMAIN + 1]
 
 
-def test_echo_pair_one_process_produces_cycles(ros_env):
-    proc = subprocess.run([sys.executable, "-m", "cr_control.tools.echo_pair", "both", "--duration", "1"],
-                          env=ros_env, capture_output=True, text=True, timeout=60)
+@pytest.mark.parametrize("shape", [(), bm.LAYOUTS[-1].echo_args], ids=["2 joints", "panda"])
+def test_echo_pair_one_process_produces_cycles(ros_env, shape):
+    proc = subprocess.run([sys.executable, "-m", "cr_control.tools.echo_pair", "both", "--duration", "1",
+                           *shape], env=ros_env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     result = parse_result(proc.stdout)
     assert result is not None, proc.stdout + proc.stderr
@@ -399,3 +401,115 @@ def test_a_single_pair_keeps_its_untagged_title_unless_run_again():
 
     bm.run_pairs(run, run, repeat=1, retries=0, progress=print)
     assert tags == ["", ""]
+
+
+PANDA = next(lay for lay in bm.LAYOUTS if lay.name == "panda")
+
+
+def test_layouts_selected_by_only_and_skip_in_their_order():
+    names = [lay.name for lay in bm.LAYOUTS]
+    assert names == ["processes", "composed", "recorder", "panda"]
+    assert [lay.name for lay in bm.select_layouts()] == names
+    assert bm.select_layouts(["panda"]) == [PANDA]
+    assert [lay.name for lay in bm.select_layouts(["panda", "processes"])] == ["processes", "panda"]
+    assert [lay.name for lay in bm.select_layouts(None, ["composed", "panda"])] == ["processes", "recorder"]
+    assert bm.select_layouts(["panda"], ["panda"]) == []
+    # The existing layouts keep their titles (README tables, the reference run's JSON keys).
+    assert [(lay.session_title, lay.echo_title) for lay in bm.LAYOUTS[:3]] == [
+        ("session processes", "echo processes"), ("session composed", "echo composed"),
+        ("session + recorder", "echo + recorder")]
+    assert PANDA.robot == "panda" and PANDA.record and not PANDA.composed
+    assert PANDA.session_title.startswith("session")  # its repeats are printed (format_repeats)
+
+
+def test_panda_targets_are_the_recorders_plus_compute_p50():
+    session = {"fresh_diff_pp": -1.5, "rate_hz": 992.0, "p99_ratio": 1.2, "compute_p50_us": 39.0}
+    echo = {"rate_hz": 990.5}
+    targets = bm.layout_targets(PANDA, session, echo)
+    recorder = bm.realtime_targets("recorder", session, echo)
+    assert [(t.op, t.limit, t.unit) for t in targets[:-1]] == [(t.op, t.limit, t.unit) for t in recorder]
+    assert [t.name for t in targets] == ["panda: fresh command vs echo pair", "panda: achieved rate",
+                                         "panda: round trip p99 vs echo pair",
+                                         "panda: controller compute p50 in the node"]
+    assert [t.verdict for t in targets] == ["PASS", "PASS", "PASS", "PASS"]
+    compute = targets[-1]
+    assert (compute.value, compute.op, compute.limit) == (39.0, "<=", 100.0)  # as measured, not scaled
+    slow = bm.layout_targets(PANDA, dict(session, compute_p50_us=101.0, fresh_diff_pp=-2.5,
+                                         rate_hz=990.0, p99_ratio=1.6), echo)
+    assert [t.verdict for t in slow] == ["FAIL", "FAIL", "FAIL", "FAIL"]
+    assert bm.layout_targets(PANDA, dict(session, compute_p50_us=None), echo)[-1].verdict == "n/a"
+    # The other layouts: issue 6's targets of their own name, no compute limit of their own.
+    for lay in bm.LAYOUTS[:3]:
+        assert bm.layout_targets(lay, session, echo) == bm.realtime_targets(lay.name, session, echo)
+    table = bm.format_targets(targets)
+    assert "panda: controller compute p50 in the node" in table and "<= 100.0 us" in table
+    assert "<= 1.50x" in table and ">= 990.5 Hz" in table
+
+
+def test_realtime_table_with_the_panda_columns():
+    runs = [("session + recorder", {"rate_hz": 995.0}), ("echo + recorder", {"rate_hz": 994.0}),
+            (PANDA.session_title, {"rate_hz": 981.25, "compute_p50_us": 39.0, "fresh_diff_pp": -0.5,
+                                   "compute_p99_us": None}),
+            (PANDA.echo_title, {"error": "boom"})]
+    lines = bm.format_realtime_table(runs).splitlines()
+    assert len(lines) == 1 + len(bm.REALTIME_ROWS)
+    assert len({len(line) for line in lines}) == 1  # every column right-aligned to its own width
+    head = lines[0]
+    assert head.endswith("  " + PANDA.echo_title) and "  " + PANDA.session_title + "  " in head
+    rate = next(ln for ln in lines if ln.startswith("achieved rate"))
+    assert rate.split()[-4:] == ["995.0", "994.0", "981.2", "failed"]
+    compute = next(ln for ln in lines if ln.startswith("controller compute p50 (us)"))
+    assert compute.split()[-2:] == ["39.0", "-"]
+    assert next(ln for ln in lines if ln.startswith("controller compute p99")).split()[-2] == "n/a"
+    # Each column as wide as its title needs: the older ones are not widened by the Panda's.
+    label_w = max(len(label) for label, *_ in bm.REALTIME_ROWS)
+    assert head[label_w:label_w + 20] == "  session + recorder"
+
+
+def test_echo_pair_messages_of_the_pandas_shape():
+    args = echo_pair.build_parser().parse_args(["both", *PANDA.echo_args])
+    state_names, command_names = echo_pair.message_names(args)
+    state = echo_pair.joint_state(state_names)
+    assert len(state.name) == len(state.position) == len(state.velocity) == len(state.effort) == 9
+    assert state.name[0] == "panda_joint1" and state.name[-1] == "panda_joint9"
+    command = echo_pair.joint_command(command_names)
+    assert list(command.name) == list(state.name[:7]) and len(command.effort) == 7
+    assert len(command.position) == len(command.velocity) == 0      # as the controller's: efforts only
+    # Without options: the thesis arm's two joints, as before.
+    default = echo_pair.message_names(echo_pair.build_parser().parse_args(["both"]))
+    assert default == (echo_pair.JOINT_NAMES, echo_pair.JOINT_NAMES)
+    assert list(echo_pair.joint_state(default[0]).position) == [0.1, 0.2]
+    for bad in (["--command-joints", "10"], ["--command-joints", "0"], ["--joints", "0"]):
+        with pytest.raises(ValueError, match="--command-joints"):
+            echo_pair.message_names(echo_pair.build_parser().parse_args(["both", "--joints", "9", *bad]))
+
+
+def test_panda_echo_shape_is_the_panda_plants():
+    """The echo pair's 9/7 joints are what the Panda's plant publishes and is commanded."""
+    from cr_control.models.urdf import package_share
+    from cr_control.tools import robots
+    from cr_sim.plants.registry import make_plant
+
+    try:
+        package_share("example-robot-data")
+    except ValueError:
+        pytest.skip("example-robot-data not installed")
+    values = robots.plant_values(robots.robot("panda"))
+    plant = make_plant(values.pop("scenario"), values)
+    args = echo_pair.build_parser().parse_args(["both", *PANDA.echo_args])
+    state_names, command_names = echo_pair.message_names(args)
+    assert len(state_names) == len(plant.joint_names) == 9
+    assert len(command_names) == len(plant.command_joints) == 7
+    assert all(name.startswith(args.joint_prefix) for name in plant.joint_names)
+
+
+def test_layout_flags_refused_in_one_line_before_any_run(capsys):
+    assert bm.main(["--only", "panda", "--only-recorder-load"]) == 2
+    assert bm.main(["--only", "panda", "--skip-panda"]) == 2
+    assert bm.main(["--only", "recorder", "--only", "panda", "--skip-recorder"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and all(line.startswith("cr_benchmark: ") for line in err)
+    only = bm.build_parser().parse_args(["--only", "panda", "--only", "composed"]).only
+    assert only == ["panda", "composed"]
+    with pytest.raises(SystemExit):
+        bm.build_parser().parse_args(["--only", "ur5"])

@@ -9,9 +9,12 @@ Runs, one after another, each on a ROS_DOMAIN_ID of its own (localhost discovery
 3. the session with the recorder exactly as ``make demo`` runs it (cr_session's
    recorder, its parameters and topics) against the echo pair plus the same recorder
    recording the echo pair's topics;
-4. the recorder alone under a synthetic load (a recorded session's 1 kHz topics): its
+4. the same on the Panda (``cr_session --robot panda``: 9 joints in /joint_states, 7
+   commanded, 3-D status and reference) against the echo pair carrying messages of the
+   Panda's shape, with the same recorder (issue 20: real time at 7 joints);
+5. the recorder alone under a synthetic load (a recorded session's 1 kHz topics): its
    CPU per message, and whether it lost any;
-5. lockstep sessions (across processes and composed) and the offline loop (no ROS):
+6. lockstep sessions (across processes and composed) and the offline loop (no ROS):
    how many times faster than real time the same plant and controller run.
 
 Two ways to carry the cost figures to the machine the targets of issue 6 are stated for:
@@ -52,6 +55,7 @@ status is read by a best-effort raw subscriber in this process (~5% of a core, s
     cr_benchmark --repeat 3              # ~8 min: the README's figures
     cr_benchmark --duration 5 --json /tmp/bench.json --skip-offline
     cr_benchmark --only-recorder-load    # the recorder's CPU per message, ~15 s
+    cr_benchmark --only panda --repeat 1 --duration 5    # one layout's pair alone, ~20 s
 """
 
 from __future__ import annotations
@@ -449,20 +453,68 @@ class Target:
                 "unit": self.unit, "note": self.note, "verdict": self.verdict}
 
 
-def realtime_targets(layout: str, session: dict[str, Any], echo: dict[str, Any]) -> list[Target]:
-    """Issue 6's real-time targets of one layout ("processes", "composed" or "recorder"):
-    the session against the echo pair of the same layout, measured in the same run."""
-    fresh_pp = {"processes": 2.0, "composed": 1.0, "recorder": 2.0}[layout]
+def realtime_targets(layout: str, session: dict[str, Any], echo: dict[str, Any],
+                     rules: str | None = None) -> list[Target]:
+    """Issue 6's real-time targets of one layout: the session against the echo pair of the
+    same layout, measured in the same run. ``rules``: whose targets ("processes", "composed"
+    or "recorder"; default ``layout``'s own)."""
+    rules = rules or layout
+    fresh_pp = {"processes": 2.0, "composed": 1.0, "recorder": 2.0}[rules]
     out = [Target(f"{layout}: fresh command vs echo pair", session.get("fresh_diff_pp"), ">=",
                   -fresh_pp, " pp", f"within {fresh_pp:g} pp of the echo pair")]
-    if layout == "recorder":
+    if rules == "recorder":
         out.append(Target(f"{layout}: achieved rate", session.get("rate_hz"), ">=",
                           echo.get("rate_hz"), " Hz", "at least the echo pair + recorder's"))
     else:
         out.append(Target(f"{layout}: achieved rate", session.get("rate_hz"), ">=", 990.0, " Hz"))
-    if layout != "composed":
+    if rules != "composed":
         out.append(Target(f"{layout}: round trip p99 vs echo pair", session.get("p99_ratio"), "<=",
                           1.5, "x"))
+    return out
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A real-time layout: a session and the echo pair it is judged against (run in pairs)."""
+
+    name: str                          # for --only, and the targets' prefix
+    session_title: str
+    echo_title: str
+    composed: bool = False
+    record: bool = False               # both with the recorder (the session's as cr_session runs it)
+    robot: str | None = None           # the session on this robot's wiping task (cr_session --robot)
+    echo_args: tuple[str, ...] = ()    # echo_pair options: its messages' shape
+    rules: str | None = None           # whose issue 6 targets (realtime_targets); default its name
+    compute_p50_us: float | None = None  # a limit on the controller's compute p50 in the node
+
+
+#: The real-time layouts, in the order they run. The Panda publishes 9 joints (7 arm + 2
+#: locked fingers, :mod:`cr_control.tools.robots`) and is commanded 7: the echo pair carries
+#: messages of that shape, with the recorder as beside the thesis arm; issue 20 (item 7)
+#: asks for issue 6's recorder targets and the controller's compute p50 <= 100 us there.
+LAYOUTS = (
+    Layout("processes", "session processes", "echo processes"),
+    Layout("composed", "session composed", "echo composed", composed=True),
+    Layout("recorder", "session + recorder", "echo + recorder", record=True),
+    Layout("panda", "session panda + recorder", "echo panda + recorder", record=True, robot="panda",
+           echo_args=("--joints", "9", "--command-joints", "7", "--joint-prefix", "panda_"),
+           rules="recorder", compute_p50_us=100.0),
+)
+
+
+def select_layouts(only: Sequence[str] | None = None, skip: Sequence[str] = ()) -> list[Layout]:
+    """The layouts named in ``only`` (all if None) but not in ``skip``, in :data:`LAYOUTS`' order."""
+    return [lay for lay in LAYOUTS if (only is None or lay.name in only) and lay.name not in skip]
+
+
+def layout_targets(layout: Layout, session: dict[str, Any], echo: dict[str, Any]) -> list[Target]:
+    """The targets of one layout's row: issue 6's real-time ones (:func:`realtime_targets`) and,
+    where the layout sets one, a limit on the controller's compute p50 in the node, as measured
+    (not carried to another machine)."""
+    out = realtime_targets(layout.name, session, echo, layout.rules)
+    if layout.compute_p50_us is not None:
+        out.append(Target(f"{layout.name}: controller compute p50 in the node", session.get("compute_p50_us"),
+                          "<=", layout.compute_p50_us, " us", "as measured in this run, not scaled"))
     return out
 
 
@@ -596,13 +648,13 @@ REALTIME_ROWS = [
 def format_realtime_table(runs: Sequence[tuple[str, dict[str, Any]]]) -> str:
     """The real-time figures of ``runs`` ((column title, figures)) as a text table."""
     label_w = max(len(r[0]) for r in REALTIME_ROWS)
-    col_w = max([14, *(len(title) + 2 for title, _ in runs)])
-    lines = ["".ljust(label_w) + "".join(title.rjust(col_w) for title, _ in runs)]
+    widths = [max(14, len(title) + 2) for title, _ in runs]
+    lines = ["".ljust(label_w) + "".join(title.rjust(w) for (title, _), w in zip(runs, widths, strict=True))]
     for label, key, spec, suffix in REALTIME_ROWS:
         cells = []
-        for _, fig in runs:
+        for (_, fig), w in zip(runs, widths, strict=True):
             cells.append(("failed" if fig.get("error") and key == "rate_hz" else
-                          cell(fig, key, spec, suffix)).rjust(col_w))
+                          cell(fig, key, spec, suffix)).rjust(w))
         lines.append(label.ljust(label_w) + "".join(cells))
     return "\n".join(lines)
 
@@ -723,12 +775,15 @@ def step_us_hot_and_after_idle(cycles: int = 400, idle_s: float = 0.0009) -> dic
     return out
 
 
-def warm_up() -> None:
-    """A few offline cycles of the scheme in this process: compiled kernels are built and
-    cached (numba ``cache=True``) before the runs, so that no run's first cycle compiles."""
+def warm_up(robots: Sequence[str] = ()) -> None:
+    """A few offline cycles of the scheme in this process, on its thesis plant and on each of
+    ``robots``: compiled kernels are built and cached (numba ``cache=True``) before the runs,
+    so that no run's first cycle compiles."""
     from cr_control.tools.offline import run_scheme
 
     run_scheme(SCHEME, 0.01)
+    for robot in robots:
+        run_scheme(SCHEME, 0.01, robot=robot)
 
 
 def calibrate() -> dict[str, float | None]:
@@ -981,17 +1036,18 @@ def _time_breakdown(listener: Listener | None, controller: bool) -> dict[str, An
 
 def run_session(title: str, domain: int, out: Path, duration: float, mode: str, composed: bool,
                 progress: Progress, compute_time: bool, record: bool = False,
-                overrides: Sequence[str] = ()) -> dict[str, Any]:
-    """One session (with the recorder as ``make demo`` runs it if ``record``); its loop, CPU,
-    time breakdown and, recorded, the recorder's CPU per message. ``overrides``: cr_session's
-    ``NODE.PARAM=VALUE`` settings."""
+                overrides: Sequence[str] = (), robot: str | None = None) -> dict[str, Any]:
+    """One session (with the recorder as ``make demo`` runs it if ``record``; on ``robot``'s
+    wiping task if given); its loop, CPU, time breakdown and, recorded, the recorder's CPU per
+    message. ``overrides``: cr_session's ``NODE.PARAM=VALUE`` settings."""
     progress.begin(title)
     name = re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
     session = Session(SessionConfig(scheme=SCHEME, duration=duration, mode=mode, composed=composed,
                                     overrides=list(overrides),
-                                    record=record, out=out, domain_id=domain, name=name), progress=progress)
+                                    record=record, out=out, domain_id=domain, name=name, robot=robot),
+                      progress=progress)
     listener = None
-    fig: dict[str, Any] = {"domain_id": domain, "logs": str(session.logs), "recorder": record}
+    fig: dict[str, Any] = {"domain_id": domain, "logs": str(session.logs), "recorder": record, "robot": robot}
     try:
         listener = Listener(domain, lambda: {k: p.pid for k, p in list(session.processes.items())},
                             topics.status_topic(SCHEME) if compute_time and mode == "realtime" else None)
@@ -1033,9 +1089,10 @@ def _write_recorder_params(path: Path, mcap: Path, record_topics: list[str], nod
 
 def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool,
              progress: Progress, rate_hz: float = 1000.0, record: bool = False,
-             recorder_module: str = RECORDER_MODULE) -> dict[str, Any]:
+             recorder_module: str = RECORDER_MODULE, echo_args: Sequence[str] = ()) -> dict[str, Any]:
     """The bare echo pair, across two processes or in one (with ``record``: plus the
-    session's recorder recording its topics); its loop and CPU figures."""
+    session's recorder recording its topics); its loop and CPU figures. ``echo_args``:
+    echo_pair options of both its processes (its messages' shape)."""
     progress.begin(title)
     logs = out / re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
     logs.mkdir(parents=True, exist_ok=True)
@@ -1051,9 +1108,10 @@ def run_echo(title: str, domain: int, out: Path, duration: float, composed: bool
         extra = [] if role == "echo" else ["--timing-subscribers", str(1 + record)] + (
             ["--wait-for-recorder"] if record else [])
         group.start(name, [sys.executable, "-m", "cr_control.tools.echo_pair", role,
-                           "--duration", str(duration), "--rate", str(rate_hz), *extra])
+                           "--duration", str(duration), "--rate", str(rate_hz), *echo_args, *extra])
 
-    fig: dict[str, Any] = {"domain_id": domain, "logs": str(logs), "recorder": record}
+    fig: dict[str, Any] = {"domain_id": domain, "logs": str(logs), "recorder": record,
+                           "echo_args": list(echo_args)}
     listener = Listener(domain, lambda: {k: p.pid for k, p in list(group.processes.items())})
     main_name = "echo_pair" if composed else "source"
     try:
@@ -1321,7 +1379,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skip-lockstep", action="store_true", help="no lockstep sessions")
     p.add_argument("--skip-composed", action="store_true", help="no one-process runs")
     p.add_argument("--skip-recorder", action="store_true",
-                   help="no runs with the recorder, no recorder load")
+                   help="no runs with the recorder (the recorder and panda layouts), no recorder load")
+    p.add_argument("--skip-panda", action="store_true", help="no Panda session and its echo pair")
+    p.add_argument("--only", action="append", choices=[lay.name for lay in LAYOUTS], metavar="LAYOUT",
+                   help="run only this real-time layout's session/echo pairs (repeatable; of "
+                        f"{', '.join(lay.name for lay in LAYOUTS)}): no recorder load, lockstep, "
+                        "offline loop or reference run, so no cost targets")
     p.add_argument("--only-recorder-load", action="store_true",
                    help="only the calibration and the recorder under synthetic load")
     p.add_argument("--recorder-module", action="append",
@@ -1351,11 +1414,23 @@ def main(argv: list[str] | None = None) -> int:
     if args.retries < 0:
         print("cr_benchmark: --retries must be >= 0", file=sys.stderr)
         return 2
-    try:  # a setting no node would take is refused before any run starts
-        session_parameters(SessionConfig(scheme=SCHEME, overrides=args.set), Path(os.devnull))
-    except SessionError as exc:
-        print(f"cr_benchmark: {exc}", file=sys.stderr)
+    if args.only and args.only_recorder_load:
+        print("cr_benchmark: --only and --only-recorder-load exclude each other", file=sys.stderr)
         return 2
+    skipped = [name for name, on in (("composed", args.skip_composed), ("recorder", args.skip_recorder),
+                                     ("panda", args.skip_recorder or args.skip_panda)) if on]
+    layouts = [] if args.only_recorder_load else select_layouts(args.only, skipped)
+    if args.only and not layouts:
+        print(f"cr_benchmark: --only {' '.join(args.only)}: every one of them is skipped", file=sys.stderr)
+        return 2
+    robots = list(dict.fromkeys(lay.robot for lay in layouts if lay.robot))
+    for robot in [None, *robots]:  # a setting no node would take is refused before any run starts
+        try:
+            session_parameters(SessionConfig(scheme=SCHEME, overrides=args.set, robot=robot),
+                               Path(os.devnull))
+        except SessionError as exc:
+            print(f"cr_benchmark: {exc}" + (f" (the {robot} session)" if robot else ""), file=sys.stderr)
+            return 2
     out = args.out or Path(tempfile.mkdtemp(prefix="cr_benchmark-"))
     out.mkdir(parents=True, exist_ok=True)
     domains = claimed_domains(args.domain_base)
@@ -1364,49 +1439,45 @@ def main(argv: list[str] | None = None) -> int:
     recorder_modules = args.recorder_module or [RECORDER_MODULE]
     t_start = time.monotonic()
     progress.begin("warm-up")
-    warm_up()
+    warm_up(robots)
     progress.begin("calibration")
     calibration = {"start": calibrate()}
     progress(f"{calibration['start']['loop_ns']:.1f} ns per loop iteration, "
              f"{fmt(calibration['start']['aba_us'], '.2f')} us per ABA call")
-    layouts = [("processes", False)] + ([] if args.skip_composed else [("composed", True)])
     realtime: list[tuple[str, dict[str, Any]]] = []
     speeds: list[tuple[str, dict[str, Any]]] = []
     loads: list[tuple[str, dict[str, Any]]] = []
     targets: list[Target] = []
     reference: dict[str, Any] | None = None
     try:
-        if not args.only_recorder_load:
-            pairs = [(layout, f"session {layout}", f"echo {layout}", composed, False)
-                     for layout, composed in layouts]
-            if not args.skip_recorder:
-                pairs.append(("recorder", "session + recorder", "echo + recorder", False, True))
-            for layout, session_title, echo_title, composed, record in pairs:
+        for layout in layouts:
 
-                def session_run(tag, composed=composed, record=record, title=session_title):
-                    return run_session(title + tag, next(domains), out, args.duration, "realtime",
-                                       composed, progress, compute, record=record,
-                                       overrides=args.set)
+            def session_run(tag, layout=layout):
+                return run_session(layout.session_title + tag, next(domains), out, args.duration, "realtime",
+                                   layout.composed, progress, compute, record=layout.record,
+                                   overrides=args.set, robot=layout.robot)
 
-                def echo_run(tag, composed=composed, record=record, title=echo_title):
-                    return run_echo(title + tag, next(domains), out, args.duration, composed, progress,
-                                    record=record, recorder_module=recorder_modules[0])
+            def echo_run(tag, layout=layout):
+                return run_echo(layout.echo_title + tag, next(domains), out, args.duration, layout.composed,
+                                progress, record=layout.record, recorder_module=recorder_modules[0],
+                                echo_args=layout.echo_args)
 
-                sessions, echoes, discarded = run_pairs(session_run, echo_run, args.repeat,
-                                                        args.retries, progress)
-                session, echo = median_figures(sessions), median_figures(echoes)
-                session["discarded"] = discarded
-                realtime += [(session_title, session), (echo_title, echo)]
-                targets += realtime_targets(layout, session, echo)
-        if not args.skip_recorder or args.only_recorder_load:
+            sessions, echoes, discarded = run_pairs(session_run, echo_run, args.repeat,
+                                                    args.retries, progress)
+            session, echo = median_figures(sessions), median_figures(echoes)
+            session["discarded"] = discarded
+            realtime += [(layout.session_title, session), (layout.echo_title, echo)]
+            targets += layout_targets(layout, session, echo)
+        if (not args.skip_recorder and not args.only) or args.only_recorder_load:
             for module in recorder_modules:
                 title = "recorder, synthetic load" + ("" if len(recorder_modules) == 1 else f" ({module})")
                 loads.append((title, run_recorder_load(title, next(domains), out, args.recorder_duration,
                                                        progress, module)))
-        if not args.only_recorder_load:
+        if not args.only_recorder_load and not args.only:
             if not args.skip_lockstep:
-                for layout, composed in layouts:
-                    title = f"lockstep {layout}"
+                for name, composed in [("processes", False)] + ([] if args.skip_composed
+                                                                else [("composed", True)]):
+                    title = f"lockstep {name}"
                     speeds.append((title, run_session(title, next(domains), out, args.lockstep_duration,
                                                       "lockstep", composed, progress, False,
                                                       overrides=args.set)))
@@ -1484,7 +1555,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         report = {
             "scheme": SCHEME, "duration_s": args.duration, "lockstep_duration_s": args.lockstep_duration,
-            "repeat": args.repeat, "session_settings": args.set,
+            "repeat": args.repeat, "session_settings": args.set, "layouts": [lay.name for lay in layouts],
             "cpu_count": os.cpu_count(), "total_s": total, "calibration": calibration,
             "reference_loop_ns": REFERENCE_LOOP_NS, "reference": reference, "issue_before": ISSUE_BEFORE,
             "realtime": {title: fig for title, fig in realtime},

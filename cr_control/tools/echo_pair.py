@@ -1,10 +1,13 @@
 """A bare rclpy echo pair: the floor under cr_control's real-time loop (no control math).
 
 ``source`` is plant-like: a wall-clock timer at ``--rate`` publishes a
-sensor_msgs/JointState (2 joints: position, velocity, effort) and a WrenchStamped with
-the same stamp, and counts its loop with the plant's :class:`~cr_sim.loop_stats.LoopStats`
-(fresh share, state -> command round trip). ``echo`` answers every JointState with a
-JointState command carrying the same header stamp. Same topics, message types, QoS
+sensor_msgs/JointState (``--joints`` joints, default 2: name, position, velocity, effort)
+and a WrenchStamped with the same stamp, and counts its loop with the plant's
+:class:`~cr_sim.loop_stats.LoopStats` (fresh share, state -> command round trip).
+``echo`` answers every JointState with a JointState command carrying the same header
+stamp (names and efforts of the state's first ``--command-joints`` joints: a robot's plant
+also publishes joints nobody commands, e.g. the Panda's 9 = 7 arm + 2 locked fingers,
+commanded 7). Same topics, message types, QoS
 (RELIABLE, KEEP_LAST 10) and executor (EventsExecutor) as the plant and controller nodes,
 so the difference to a session is what cr_control itself costs.
 
@@ -24,6 +27,7 @@ messages" at the end. ``cr_benchmark`` measures the recorder's CPU per message w
     python -m cr_control.tools.echo_pair echo &                     # two processes
     python -m cr_control.tools.echo_pair source --duration 10
     python -m cr_control.tools.echo_pair synthetic --duration 3     # with a recorder running
+    python -m cr_control.tools.echo_pair both --joints 9 --command-joints 7 --joint-prefix panda_
 """
 
 from __future__ import annotations
@@ -53,12 +57,42 @@ RESULT_PREFIX = "ECHO_RESULT "
 SYNTHETIC_EXTRA_STATUS = 6
 
 
+def joint_names(n: int, prefix: str = "") -> list[str]:
+    """``n`` joint names: ``{prefix}joint1`` ... (2 without a prefix: :data:`JOINT_NAMES`)."""
+    return [f"{prefix}joint{i + 1}" for i in range(n)]
+
+
+def joint_state(names: list[str], stamp=None) -> JointState:
+    """The source's state: every joint's name, position, velocity and effort."""
+    n = len(names)
+    state = JointState()
+    if stamp is not None:
+        state.header.stamp = stamp
+    state.name = names
+    state.position = [0.1 * (i + 1) for i in range(n)]
+    state.velocity = [0.0] * n
+    state.effort = [0.0] * n
+    return state
+
+
+def joint_command(names: list[str], stamp=None) -> JointState:
+    """The echo's command: the commanded joints' names and efforts."""
+    command = JointState()
+    if stamp is not None:
+        command.header.stamp = stamp
+    command.name = names
+    command.effort = [0.0] * len(names)
+    return command
+
+
 class EchoSource(Node):
     """Publishes plant-like state at ``rate_hz`` for ``duration`` wall seconds once an echo answers."""
 
     def __init__(self, rate_hz: float = 1000.0, duration: float = 10.0,
-                 wait_for_recorder: bool = False, timing_subscribers: int = 0, **kwargs):
+                 wait_for_recorder: bool = False, timing_subscribers: int = 0,
+                 names: list[str] | None = None, **kwargs):
         super().__init__("echo_source", **kwargs)
+        self.names = JOINT_NAMES if names is None else names
         self.period = 1.0 / rate_hz
         self.duration = duration
         self.finished = Future()
@@ -127,12 +161,7 @@ class EchoSource(Node):
         wrench.header.stamp = stamp
         wrench.header.frame_id = "world"
         wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z = 0.0, 1.0, 0.0
-        state = JointState()
-        state.header.stamp = stamp
-        state.name = JOINT_NAMES
-        state.position = [0.1, 0.2]
-        state.velocity = [0.0, 0.0]
-        state.effort = [0.0, 0.0]
+        state = joint_state(self.names, stamp)
         self.wrench_pub.publish(wrench)
         self.state_pub.publish(state)
         if self._published is not None:  # the plant's publish_time_us, as a baseline
@@ -173,8 +202,9 @@ class EchoSource(Node):
 class Echo(Node):
     """Answers each JointState with a JointState command of the same stamp (no math)."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, names: list[str] | None = None, **kwargs):
         super().__init__("echo", **kwargs)
+        self.names = JOINT_NAMES if names is None else names
         self.force = (0.0, 0.0, 0.0)
         self.answered = 0
         self.command_pub = self.create_publisher(JointState, topics.JOINT_COMMANDS, PUBLISH_QOS)
@@ -186,11 +216,7 @@ class Echo(Node):
         self.force = (f.x, f.y, f.z)
 
     def _on_state(self, msg: JointState) -> None:
-        command = JointState()
-        command.header.stamp = msg.header.stamp
-        command.name = JOINT_NAMES
-        command.effort = [0.0, 0.0]
-        self.command_pub.publish(command)
+        self.command_pub.publish(joint_command(self.names, msg.header.stamp))
         self.answered += 1
 
 
@@ -288,8 +314,8 @@ def parse_result(text: str) -> dict[str, float] | None:
     return None
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the source, the echo, or both in one process."""
+def build_parser() -> argparse.ArgumentParser:
+    """Command-line interface of the echo pair."""
     p = argparse.ArgumentParser(prog="echo_pair", description=__doc__.split("\n\n")[0])
     p.add_argument("role", choices=["source", "echo", "both", "synthetic"])
     p.add_argument("--duration", type=float, default=10.0,
@@ -302,7 +328,32 @@ def main(argv: list[str] | None = None) -> int:
                         "(cr_benchmark's listener, the recorder: they see every report)")
     p.add_argument("--controller", default="synthetic",
                    help="synthetic: controller name of the reference/status topics")
+    p.add_argument("--joints", type=int, default=len(JOINT_NAMES),
+                   help=f"joints in the state (default {len(JOINT_NAMES)})")
+    p.add_argument("--command-joints", type=int,
+                   help="joints in the command: the state's first ones (default: all)")
+    p.add_argument("--joint-prefix", default="",
+                   help="prefix of the joint names (joint1, joint2, ... without one)")
+    return p
+
+
+def message_names(args: argparse.Namespace) -> tuple[list[str], list[str]]:
+    """The joint names of the state and of the command from the command line."""
+    state = joint_names(args.joints, args.joint_prefix)
+    n = args.joints if args.command_joints is None else args.command_joints
+    if not 0 < n <= args.joints:
+        raise ValueError(f"--command-joints must be in 1..{args.joints} (--joints), not {n}")
+    return state, state[:n]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the source, the echo, or both in one process."""
+    p = build_parser()
     args = p.parse_args(argv)
+    try:
+        state_names, command_names = message_names(args)
+    except ValueError as exc:
+        p.error(str(exc))
     isolate_this_process()  # localhost discovery; keeps a ROS_DOMAIN_ID already set
     rclpy.init(args=[sys.argv[0]])
     nodes: list[Node] = []
@@ -311,11 +362,11 @@ def main(argv: list[str] | None = None) -> int:
         spin_nodes([load], until=load.finished)
         return 0
     if args.role in ("echo", "both"):
-        nodes.append(Echo())
+        nodes.append(Echo(command_names))
     source = None
     if args.role in ("source", "both"):
         source = EchoSource(args.rate, args.duration, args.wait_for_recorder,
-                            args.timing_subscribers)
+                            args.timing_subscribers, state_names)
         nodes.append(source)
     spin_nodes(nodes, until=source.finished if source is not None else None)
     return 0

@@ -343,7 +343,8 @@ class URDFSurface(Plant):
     docstring). State x = [q (n), q' (n)] of the chain."""
 
     command_interface = "effort"
-    sensor_fields = ("contact_depth",)
+    # No /plant/sensors: the contact depth is a method (tests, analysis offline), not a
+    # 1 kHz topic no controller reads (it cost the recorder a message per cycle).
 
     def __init__(self, values: dict):
         if values["substeps"] < 0:
@@ -521,10 +522,6 @@ class URDFSurface(Plant):
         """Penetration depth of the tip now (m; negative: distance when separated)."""
         self._evaluate()
         return float(self._contact[3])
-
-    def sensors(self) -> list[float]:
-        """[contact_depth] (m; -inf with surface "none")."""
-        return [self.contact_depth()]
 
     def contact_force_magnitude(self) -> float:
         """|f| (N) of the true contact force (no noise drawn: for a force reflex)."""
