@@ -4,6 +4,10 @@ Reads any MCAP file the recorder wrote (or any ``ros2`` MCAP with this package's
 without ROS: messages are decoded with ``mcap_ros2``. A session gives what a control
 engineer asks first: tracking metrics (RMS/max position and force error, settling time,
 peak torque), controller compute time, loop timing, and the thesis's figures as PNG.
+Metrics and figures cover the position axes the session has (x, y; and z on a spatial
+arm); a robot session (``cr_session --robot``, wiping a table) also gets the wiping task's
+metrics and figures of :mod:`cr_control.analysis.robot` (normal force, in-plane path error,
+contact lost, orientation and posture error; 3-D and top-view path).
 
 It also checks that the recording is one session's own: more than one publisher on a
 control topic, or header stamps on /joint_states or /joint_commands that go backwards
@@ -42,7 +46,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
-from cr_control.analysis import chapter2, chapter4, chapter5, chapter6
+from cr_control.analysis import chapter2, chapter4, chapter5, chapter6, robot
 from cr_control.analysis.figures import save_figure as _save
 from cr_control.core import ros_yaml, topics
 
@@ -452,9 +456,12 @@ def metrics(session: Session) -> dict[str, Any]:
     """Tracking, torque, compute-time and loop-timing figures of merit (flat, SI units).
 
     Keys end with their unit. RMS and max are over samples; "last half" is the second
-    half of the run in time. Settling: see :func:`settling_time`. Loop timing comes from
-    the last plant timing message (whole-run totals) plus the mean of the per-second
-    rates. Parts missing from the recording are absent from the result.
+    half of the run in time. ``pos_err_*`` and settling are of the error norm over all
+    position axes (x, y and, on a spatial arm, z); force errors and forces per axis.
+    Settling: see :func:`settling_time`. A robot session adds the wiping task's metrics
+    (:func:`cr_control.analysis.robot.robot_metrics`). Loop timing comes from the last
+    plant timing message (whole-run totals) plus the mean of the per-second rates. Parts
+    missing from the recording are absent from the result.
     """
     out: dict[str, Any] = {"controller": session.controller or "-"}
     status = session.status
@@ -463,24 +470,25 @@ def metrics(session: Session) -> dict[str, Any]:
         out["duration_s"] = float(t[-1] - t[0])
         out["samples"] = len(t)
         if "e_x" in status and "e_y" in status:
-            e = np.hypot(status["e_x"], status["e_y"])
+            e = robot.error_norm(status)
             last = t >= t[0] + 0.5 * (t[-1] - t[0])
             out["pos_err_rms_m"] = _rms(e)
             out["pos_err_max_m"] = float(np.max(e))
             out["pos_err_rms_last_half_m"] = _rms(e[last])
             out["pos_err_max_last_half_m"] = float(np.max(e[last]))
             out["settling_time_s"] = settling_time(t, e)
-        for axis in ("x", "y"):
+        for axis in robot.AXES:
             name = f"f_err_{axis}"
             if name in status:
                 err = status[name]
                 out[f"{name}_rms_N"] = _rms(err)
                 out[f"{name}_max_N"] = float(np.max(err))
                 out[f"{name}_min_N"] = float(np.min(err))
-        for axis in ("x", "y"):
+        for axis in robot.AXES:
             if f"f_{axis}" in status:
                 out[f"f_{axis}_min_N"] = float(np.min(status[f"f_{axis}"]))
                 out[f"f_{axis}_max_N"] = float(np.max(status[f"f_{axis}"]))
+        out.update(robot.robot_metrics(session))
         if "compute_time_us" in status:
             out.update(_percentiles("compute_time", status["compute_time_us"], "us"))
     commands = session.joint_commands
@@ -630,9 +638,10 @@ def plot_session(session: Session, out_dir: str | Path) -> list[Path]:
     rel, status, ref = session.relative_time, session.status, session.reference
     title = session.name
 
+    position_axes = robot.position_axes(status)
     if _has(status, "r_x", "r_y"):
-        fig, axes = _figure(2)
-        for ax, axis in zip(axes[:, 0], ("x", "y"), strict=True):
+        fig, axes = _figure(len(position_axes))
+        for ax, axis in zip(axes[:, 0], position_axes, strict=True):
             ax.plot(rel(status["stamp"]), status[f"r_{axis}"], label=f"{axis} (actual)")
             if _has(ref, f"r_d_{axis}"):
                 ax.plot(rel(ref["stamp"]), ref[f"r_d_{axis}"], "k--", label=f"{axis}_d (desired)")
@@ -644,8 +653,8 @@ def plot_session(session: Session, out_dir: str | Path) -> list[Path]:
     if _has(status, "e_x", "e_y"):
         fig, axes = _figure(2)
         t = rel(status["stamp"])
-        axes[0, 0].plot(t, np.hypot(status["e_x"], status["e_y"]) * 1e3, label="‖e‖")
-        for axis in ("x", "y"):
+        axes[0, 0].plot(t, robot.error_norm(status) * 1e3, label="‖e‖")
+        for axis in position_axes:
             axes[0, 0].plot(t, status[f"e_{axis}"] * 1e3, lw=0.8, label=f"e_{axis}")
             if f"f_err_{axis}" in status:
                 axes[1, 0].plot(t, status[f"f_err_{axis}"], label=f"f_err_{axis}")
@@ -657,8 +666,8 @@ def plot_session(session: Session, out_dir: str | Path) -> list[Path]:
 
     force = session.wrench
     if _has(status, "f_x", "f_y") or force is not None:
-        fig, axes = _figure(2)
-        for i, (ax, axis) in enumerate(zip(axes[:, 0], ("x", "y"), strict=True)):
+        fig, axes = _figure(len(position_axes))
+        for i, (ax, axis) in enumerate(zip(axes[:, 0], position_axes, strict=True)):
             if _has(status, f"f_{axis}"):
                 ax.plot(rel(status["stamp"]), status[f"f_{axis}"], label=f"f_{axis} (measured)")
             elif force is not None:
@@ -695,7 +704,7 @@ def plot_session(session: Session, out_dir: str | Path) -> list[Path]:
 
     if _has(status, "s_x", "s_y"):
         fig, axes = _figure(1)
-        for axis in ("x", "y"):
+        for axis in (a for a in robot.AXES if f"s_{a}" in status):
             axes[0, 0].plot(rel(status["stamp"]), status[f"s_{axis}"], label=f"s_{axis}")
         axes[0, 0].set_ylabel("s [m/s]")
         axes[0, 0].set_xlabel("t [s]")
@@ -742,6 +751,7 @@ def plot_session(session: Session, out_dir: str | Path) -> list[Path]:
     written += chapter2.session_figures(session, out)   # figs. 2.4-2.12 for chapter 2 runs
     written += chapter4.session_figures(session, out)   # figs. 4.2-4.11, appendix C
     written += chapter6.session_figures(session, out)   # figs. 6.2-6.18 for chapter 6 runs
+    written += robot.session_figures(session, out)      # a URDF arm wiping a table
     return written
 
 
@@ -801,16 +811,18 @@ def compare(sessions: Sequence[Session], out_dir: str | Path) -> list[Path]:
     def error_norm(s: Session) -> list:
         if not _has(s.status, "e_x", "e_y"):
             return []
-        return [(s.status["stamp"], 1e3 * np.hypot(s.status["e_x"], s.status["e_y"]), "first")]
+        return [(s.status["stamp"], 1e3 * robot.error_norm(s.status), "first")]
 
     _overlay(sessions, labels, out / "compare_position.png",
              "Position tracking (dashed: desired)",
              [("x [m]", tracked("r_x", "r_d_x")), ("y [m]", tracked("r_y", "r_d_y")),
-              ("‖e‖ [mm]", error_norm)], written)
+              ("z [m]", tracked("r_z", "r_d_z")), ("‖e‖ [mm]", error_norm)], written)
+    forces = [(f"f_{a} [N]", tracked(f"f_{a}", f"f_d_{a}")) for a in robot.AXES]
+    forces += [(f"f_err_{a} [N]", status_line(f"f_err_{a}")) for a in robot.AXES]
     _overlay(sessions, labels, out / "compare_force.png", "Contact force (dashed: desired)",
-             [("f_x [N]", tracked("f_x", "f_d_x")), ("f_y [N]", tracked("f_y", "f_d_y")),
-              ("f_err_x [N]", status_line("f_err_x")), ("f_err_y [N]", status_line("f_err_y"))],
-             written)
+             forces, written)
+    _overlay(sessions, labels, out / "compare_robot.png", "Wiping the table (dashed: desired)",
+             robot.compare_panels(), written)
     joints: list[str] = []
     for s in sessions:
         joints += [name for name, _, _ in _torques(s) if name not in joints]
