@@ -5,6 +5,12 @@ with DESIGN.md's resolution of the d/l swap: link length ``length`` (0.3 m), cen
 mass ``com`` from the joint (0.15 m), mass ``mass`` (0.1 kg) and inertia ``inertia``
 (0.3 kg m^2) about the centre of mass. The closed forms printed in the thesis are in
 :func:`closed_form_dynamics` so tests can compare them with Pinocchio.
+
+Any URDF whose chain ``base_link`` -> ``tip_link`` is a planar 2-link arm gives this arm
+(:func:`two_link_chain`): the chain comes from :func:`cr_control.models.urdf.load_chain`
+(joint names, limits, ``<dynamics>``), the :class:`LinkParameters` override its geometry
+and inertia, and a chain that is not a planar 2-link arm is refused with
+:class:`NotTwoLinkArmError`.
 """
 
 from __future__ import annotations
@@ -17,10 +23,18 @@ import numpy as np
 import pinocchio as pin
 
 from cr_control.core.paths import config_file
+from cr_control.models.urdf import CONTINUOUS, JOINT_KINDS, ChainModel, RobotModelError, load_chain
 
 URDF_NAME = "two_link_arm.urdf"
 TOOL_FRAME = "tool0"
+BASE_FRAME = "base_link"
 GRAVITY = 9.8
+#: Rounding a re-rooted joint placement may carry (m, and entries of a rotation matrix).
+PLACEMENT_TOLERANCE = 1e-9
+
+
+class NotTwoLinkArmError(RobotModelError):
+    """The URDF loads, but its chain is not a planar 2-link arm; the message says why."""
 
 
 @dataclass
@@ -58,22 +72,82 @@ class LinkParameters:
         ])
 
 
+def _joint_kind(model: pin.Model, j: int) -> str:
+    """How joint ``j`` moves, in words: "a revolute joint about z", "a continuous joint"..."""
+    short = model.joints[j].shortname()
+    kind = JOINT_KINDS.get(short)
+    if kind is None:
+        return f"a {short[len('JointModel'):]} joint"
+    if kind == CONTINUOUS:
+        return "a continuous joint"
+    axis = short[-1].lower() if short[-1] in "XYZ" else \
+        "(" + ", ".join(f"{a:g}" for a in model.joints[j].extract().axis) + ")"
+    return f"a {kind} joint {'along' if kind == 'prismatic' else 'about'} {axis}"
+
+
+def check_two_link(chain: ChainModel) -> None:
+    """NotTwoLinkArmError unless ``chain`` is a planar 2-link arm as the thesis's scenarios
+    need it: two revolute joints about z (URDF ``axis 0 0 1``), their origins not rotated
+    (the links stay in the x-y plane of the base) and the first joint on the base's z axis."""
+    model, names = chain.model, chain.joint_names
+    if chain.n != 2:
+        raise NotTwoLinkArmError(f"the chain {chain.base_link} -> {chain.tip_link} has "
+                                 f"{chain.n} joint{'' if chain.n == 1 else 's'} "
+                                 f"({', '.join(names)}), not 2")
+    for j, name in enumerate(names, start=1):
+        if model.joints[j].shortname() != "JointModelRZ":
+            raise NotTwoLinkArmError(f"joint {name!r} is {_joint_kind(model, j)}, not a "
+                                     "revolute joint about z")
+        if not np.allclose(model.jointPlacements[j].rotation, np.eye(3), rtol=0.0,
+                           atol=PLACEMENT_TOLERANCE):
+            raise NotTwoLinkArmError(f"joint {name!r} has a rotated origin: its link leaves the "
+                                     f"x-y plane of {chain.base_link!r} or turns in it")
+    offset = model.jointPlacements[1].translation[:2]
+    if np.abs(offset).max() > PLACEMENT_TOLERANCE:
+        raise NotTwoLinkArmError(f"joint {names[0]!r} is at x-y "
+                                 f"{[round(float(v), 6) for v in offset]} m from "
+                                 f"{chain.base_link!r}, not at its origin")
+
+
+def two_link_chain(robot_description: str, urdf_file: str, base_link: str, tip_link: str,
+                   params: LinkParameters | None = None) -> ChainModel:
+    """The chain ``base_link`` -> ``tip_link`` of the URDF (:func:`load_chain`) as the thesis's
+    arm: a planar 2-link arm (:func:`check_two_link`) with ``params`` applied over the URDF's
+    values - joint 2 at ``length[0]`` and the tip at ``length[1]`` along their link's x axis,
+    each link's mass, centre of mass on its x axis and inertia about it (isotropic, as the
+    thesis's I_i) - gravity ``params.gravity`` along -y of the base frame and joint 1 at the
+    base's origin (a height above it dropped). The joint names, limits and ``<dynamics>``
+    are the URDF's.
+
+    RobotModelError (one line) if the URDF cannot be loaded; NotTwoLinkArmError if its chain
+    is not a planar 2-link arm; ValueError if ``params`` are not physical.
+    """
+    params = params or LinkParameters()
+    params.validate()
+    chain = load_chain(robot_description, urdf_file, base_link, tip_link,
+                       np.array([0.0, -params.gravity, 0.0]))
+    check_two_link(chain)
+    model = chain.model
+    # exactly the planar arm: rounding of the re-rooting and a height of joint 1 above the
+    # base (which a planar model does not see) dropped
+    model.jointPlacements[1] = pin.SE3(np.eye(3), np.zeros(3))
+    model.jointPlacements[2] = pin.SE3(np.eye(3), np.array([params.length[0], 0.0, 0.0]))
+    for j in (1, 2):
+        izz = params.inertia[j - 1]
+        model.inertias[j] = pin.Inertia(
+            params.mass[j - 1], np.array([params.com[j - 1], 0.0, 0.0]), np.diag([izz, izz, izz])
+        )
+    # the tip (and a joint frame of the tip's name, which frame lookups by name may find first)
+    for frame in model.frames:
+        if frame.name == tip_link and frame.parentJoint == 2:
+            frame.placement.translation = np.array([params.length[1], 0.0, 0.0])
+    return chain
+
+
 def build_model(params: LinkParameters, urdf: Path | None = None) -> pin.Model:
     """Pinocchio model of the arm: URDF structure (default: the shipped one) with ``params`` applied."""
-    params.validate()
-    model = pin.buildModelFromUrdf(str(urdf or config_file(URDF_NAME)))
-    model.gravity.linear = np.array([0.0, -params.gravity, 0.0])
-    joint2 = model.getJointId("joint2")
-    model.jointPlacements[joint2].translation = np.array([params.length[0], 0.0, 0.0])
-    for i, joint in enumerate(("joint1", "joint2")):
-        jid = model.getJointId(joint)
-        izz = params.inertia[i]
-        model.inertias[jid] = pin.Inertia(
-            params.mass[i], np.array([params.com[i], 0.0, 0.0]), np.diag([izz, izz, izz])
-        )
-    tool = model.getFrameId(TOOL_FRAME)
-    model.frames[tool].placement.translation = np.array([params.length[1], 0.0, 0.0])
-    return model
+    return two_link_chain("", str(urdf or config_file(URDF_NAME)), BASE_FRAME, TOOL_FRAME,
+                          params).model
 
 
 class TwoLinkArm:
@@ -81,11 +155,20 @@ class TwoLinkArm:
 
     joint_names = ("joint1", "joint2")
 
-    def __init__(self, params: LinkParameters | None = None, urdf: Path | None = None):
+    def __init__(self, params: LinkParameters | None = None, urdf: Path | None = None,
+                 chain: ChainModel | None = None):
+        """The arm of ``params`` from the URDF ``urdf`` (default: the shipped one), or from
+        ``chain``, a :func:`two_link_chain` already made with ``params``."""
         self.params = params or LinkParameters()
-        self.model = build_model(self.params, urdf)
+        if chain is None:
+            chain = two_link_chain("", str(urdf or config_file(URDF_NAME)), BASE_FRAME,
+                                   TOOL_FRAME, self.params)
+        #: The URDF chain the arm was made from (names, limits, ``<dynamics>``).
+        self.chain = chain
+        self.model = chain.model
         self.data = self.model.createData()
-        self.tool = self.model.getFrameId(TOOL_FRAME)
+        self.tool = chain.tip
+        self.joint_names = chain.joint_names
         self._zero = np.zeros(2)
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:

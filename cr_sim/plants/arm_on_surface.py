@@ -8,7 +8,15 @@ One compiled call per control period advances the state and evaluates the sensor
 new state, so the plant's share of the 1 kHz cycle stays a few microseconds.
 
 The arm comes from the URDF through Pinocchio (:mod:`cr_control.models.arm_model`) and is packed
-into a :class:`~cr_control.models.planar_chain.PlanarChain` for the compiled dynamics.
+into a :class:`~cr_control.models.planar_chain.PlanarChain` for the compiled dynamics. Every
+thesis scenario with an arm (chapters 2, 3, 5, 6) names it by the robot parameters
+(:func:`robot_parameters`: ``robot_description`` or ``urdf_file``, ``base_link``,
+``tip_link``, as the controllers do) and overrides its geometry and inertia by the ``link_*``
+parameters (:func:`arm_parameters`, the thesis's values by default: the thesis URDFs carry the
+same ones). The scenarios are defined for a planar 2-link arm (closed-form inverse
+kinematics, the 2-link closures of chapters 2 and 6): any other chain is refused
+(:func:`thesis_chain`) in favour of the scenario ``urdf_surface``. The plant's joint names
+are the URDF's.
 """
 
 from __future__ import annotations
@@ -19,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.parameters import Param, ParameterError
-from cr_control.models.arm_model import LinkParameters, TwoLinkArm
+from cr_control.models.arm_model import LinkParameters, NotTwoLinkArmError, TwoLinkArm, two_link_chain
 from cr_control.models.planar_chain import (
     GEOMETRY_ROWS,
     PlanarChain,
@@ -29,6 +37,7 @@ from cr_control.models.planar_chain import (
     tool_geo,
     tool_kinematics,
 )
+from cr_control.models.urdf import ChainModel
 from cr_sim.models.surfaces import surface_contact
 from cr_sim.plants.base import Measurement, Plant, take_command
 
@@ -36,20 +45,68 @@ from cr_sim.plants.base import Measurement, Plant, take_command
 SENSORS = ("f_x", "f_y", "depth", "r_x", "r_y", "v_x", "v_y")
 
 
+#: The scenario for an arm that is not a planar 2-link one.
+ANY_ARM_SCENARIO = "urdf_surface"
+
+
+def robot_parameters(urdf_file: str, arm: str) -> list[Param]:
+    """The robot a thesis arm scenario simulates (the controllers' parameters of the same
+    names, :data:`cr_control.schemes.blocks.task_space.ROBOT_PARAMETERS`); ``urdf_file`` is the
+    scenario's default, ``arm`` says which arm that is."""
+    return [
+        Param("robot_description", "", "The arm's URDF XML (as robot_state_publisher takes it); "
+              "if empty, urdf_file is read.", "string", read_only=True),
+        Param("urdf_file", urdf_file, "URDF file: a path, a file of cr_control's config "
+              f"directory, or package://PKG/path. Default: {arm}. The chain must be a planar "
+              "2-link arm (two revolute joints about z; link_* override its geometry and "
+              f"inertia); any other arm: the scenario {ANY_ARM_SCENARIO}.", "string",
+              read_only=True),
+        Param("base_link", "base_link", "First link of the arm's chain: the plant's frame (the "
+              "arm's first joint at its origin, gravity along its -y).", "string",
+              read_only=True),
+        Param("tip_link", "tool0", "End-effector link: the point that touches the environment.",
+              "string", read_only=True),
+    ]
+
+
 def arm_parameters(length: float, com: float) -> list[Param]:
     """The arm's geometric and inertial parameters with the given link length and centre of mass
-    (m = 0.1 kg, I = 0.3 kg m^2 in every chapter)."""
+    (m = 0.1 kg, I = 0.3 kg m^2 in every chapter); they override the URDF's values."""
     return [
-        Param("link_length", [length, length], "Link lengths (m).", "positive_vector", 2,
+        Param("link_length", [length, length], "Link lengths (m): joint 2 and the tip along the "
+              "x axis of links 1 and 2 (override the URDF's).", "positive_vector", 2,
               read_only=True),
-        Param("link_com", [com, com], "Centre-of-mass distance from each joint (m).",
+        Param("link_com", [com, com], "Centre-of-mass distance from each joint along its link's "
+              "x axis (m) (overrides the URDF's).", "positive_vector", 2, read_only=True),
+        Param("link_mass", [0.1, 0.1], "Link masses (kg) (override the URDF's).",
               "positive_vector", 2, read_only=True),
-        Param("link_mass", [0.1, 0.1], "Link masses (kg).", "positive_vector", 2, read_only=True),
-        Param("link_inertia", [0.3, 0.3], "Link inertias about the centre of mass (kg m^2).",
-              "positive_vector", 2, read_only=True),
+        Param("link_inertia", [0.3, 0.3], "Link inertias about the centre of mass (kg m^2) "
+              "(override the URDF's).", "positive_vector", 2, read_only=True),
         Param("gravity", 9.8, "Gravitational acceleration along -y (m/s^2).", "nonnegative",
               read_only=True),
     ]
+
+
+def link_parameters(values: dict) -> LinkParameters:
+    """The LinkParameters of a scenario's ``link_*`` and ``gravity`` values."""
+    return LinkParameters(length=list(values["link_length"]), com=list(values["link_com"]),
+                          mass=list(values["link_mass"]), inertia=list(values["link_inertia"]),
+                          gravity=values["gravity"])
+
+
+def thesis_chain(values: dict, scenario: str) -> ChainModel:
+    """The planar 2-link arm named by the robot parameters of ``values`` with its ``link_*``
+    and ``gravity`` applied (:func:`cr_control.models.arm_model.two_link_chain`).
+    ParameterError (one line): the URDF's own reason if it cannot be loaded; ``scenario``'s
+    need of a planar 2-link arm if its chain is another one."""
+    try:
+        return two_link_chain(values["robot_description"], values["urdf_file"],
+                              values["base_link"], values["tip_link"], link_parameters(values))
+    except NotTwoLinkArmError as exc:
+        raise ParameterError(f"{scenario} simulates a planar 2-link arm, but {exc}; the scenario "
+                             f"{ANY_ARM_SCENARIO} simulates any other arm") from None
+    except ValueError as exc:      # RobotModelError, or link parameters that are not physical
+        raise ParameterError(str(exc)) from None
 
 
 def disturbance_parameters(amplitude: list[float], frequency: float, start: float,
@@ -167,21 +224,19 @@ def arm_on_surface_step(chain, surface, disturbance, t, x, tau, command, dt, sub
 
 
 class ArmOnSurface(Plant):
-    """A planar arm from the URDF pressing a packed compliant surface; scenario modules give
-    the surface, the initial state and the defaults. State x = [q, q']."""
+    """A planar 2-link arm from the URDF pressing a packed compliant surface; scenario modules
+    give the surface, the initial state and the defaults. State x = [q, q']."""
 
     command_interface = "effort"
+    #: The scenario's name, for the refusal of an arm it does not simulate.
+    scenario = "arm_on_surface"
 
     def __init__(self, values: dict, surface: np.ndarray, q0: np.ndarray):
         if values["substeps"] < 1:
             raise ParameterError("substeps must be >= 1")
-        self.arm = TwoLinkArm(LinkParameters(
-            length=list(values["link_length"]), com=list(values["link_com"]),
-            mass=list(values["link_mass"]), inertia=list(values["link_inertia"]),
-            gravity=values["gravity"],
-        ))
-        self.joint_names = TwoLinkArm.joint_names
-        self.chain = PlanarChain.from_model(self.arm.model, "tool0").chain
+        self.arm = TwoLinkArm(link_parameters(values), chain=thesis_chain(values, self.scenario))
+        self.joint_names = self.arm.joint_names
+        self.chain = PlanarChain.from_model(self.arm.model, values["tip_link"]).chain
         self.surface = surface
         self.substeps = int(values["substeps"])
         self.disturbance_packed = np.array([

@@ -28,6 +28,9 @@ chosen at t = 0 is kept throughout; default sin(theta_2) < 0 as in ch. 3 and 6 (
 above the line from the base to the tool). Only the tool touches the surface: the links are
 not collision-checked (on the far side of the circle the arm reaches across the disk on
 either branch: the thesis's example has the same geometry).
+
+The arm: ``config/two_link_arm_ch5.urdf`` by default, or any planar 2-link arm given by the
+robot parameters (its joint names; ``link_*`` override its geometry and inertia).
 """
 
 from __future__ import annotations
@@ -38,12 +41,18 @@ import numpy as np
 
 from cr_control.core.parameters import Param, ParameterError
 from cr_sim.models.surfaces import circle
-from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS, ArmOnSurface, arm_parameters
+from cr_sim.plants.arm_on_surface import (
+    NOISE_PARAMETERS,
+    ArmOnSurface,
+    arm_parameters,
+    robot_parameters,
+)
 from cr_sim.plants.base import max_contact_force_parameter
 
 NAME = "circular_surface"
 
 PARAMETERS = [
+    *robot_parameters("two_link_arm_ch5.urdf", "the 2-link arm of chapter 5 (0.6 m links)"),
     *arm_parameters(length=0.6, com=0.3),
     Param("surface_centre", [0.8, -0.4], "Centre c of the circular surface |r - c| = R (m) "
           "(section 5.3: (x - 0.8)^2 + (y + 0.4)^2 = 0.09).", "vector", 2, read_only=True),
@@ -78,6 +87,8 @@ PARAMETERS = [
 
 class CircularSurfaceArm(ArmOnSurface):
     """The 2-link arm of ch. 5 on the circular surface, with the push-off disturbance."""
+
+    scenario = NAME
 
     def __init__(self, values: dict):
         if values["surface_radius"] <= 0.0:

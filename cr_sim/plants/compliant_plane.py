@@ -8,6 +8,9 @@ surface point), plus optional damping. Contact is unilateral: no pulling force.
 
 Initial state (not given in the thesis, DESIGN.md): at rest at r_e(0) = (-0.05, 0.2),
 the surface point nearest r_d(0), touching with zero force.
+
+The arm: ``config/two_link_arm.urdf`` by default, or any planar 2-link arm given by the robot
+parameters (its joint names; ``link_*`` override its geometry and inertia).
 """
 
 from __future__ import annotations
@@ -19,12 +22,14 @@ from cr_sim.plants.arm_on_surface import (
     ArmOnSurface,
     arm_parameters,
     disturbance_parameters,
+    robot_parameters,
 )
 from cr_sim.plants.base import max_contact_force_parameter
 
 NAME = "compliant_plane"
 
 PARAMETERS = [
+    *robot_parameters("two_link_arm.urdf", "the 2-link arm of chapter 3 (0.3 m links)"),
     *arm_parameters(length=0.3, com=0.15),
     Param("surface_normal", [1.0, -1.0],
           "n of the plane n.r + offset = 0; points out of the environment (3.92: [1, -1]).",
@@ -51,6 +56,8 @@ PARAMETERS = [
 
 class CompliantPlaneArm(ArmOnSurface):
     """The 2-link arm of ch. 3 in contact with a compliant plane."""
+
+    scenario = NAME
 
     def __init__(self, values: dict):
         try:

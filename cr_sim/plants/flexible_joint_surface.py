@@ -3,7 +3,9 @@
 
 The links are the 2-link arm of chapter 3 (``config/two_link_arm.urdf`` through Pinocchio,
 link length 0.3 m, centre of mass 0.15 m, m = 0.1 kg, I = 0.3 kg m^2, g = 9.8 along -y,
-vertical plane); each joint is an elastic transmission of stiffness K_s driven by a motor
+vertical plane; or any planar 2-link arm given by the robot parameters, ``link_*``
+overriding its geometry and inertia, whose joints J then name the links and the motors
+J_motor); each joint is an elastic transmission of stiffness K_s driven by a motor
 of inertia J_m (the reduced model of Spong, [93]):
 
     M(q_l) q_l'' + C(q_l, q_l') q_l' + G(q_l) = K_s theta + J_Phi(q_l)^T lambda   (6.1, 6.5)
@@ -55,6 +57,9 @@ K_s = 10 (tool at (-0.06374, 0.28626) m).
 
 The thesis gives no motor torque limit: ``motor_effort_limit`` (100 N m, far above the
 static torques of < 1 N m; a parameter) bounds the commands in the plant node.
+
+Joint names: the URDF's link joints J1, J2 (joint1, joint2 on the thesis's arm), the motors
+J1_motor, J2_motor and their sensors J1_motor_acceleration, J2_motor_acceleration.
 """
 
 from __future__ import annotations
@@ -66,13 +71,17 @@ import pinocchio as pin
 from numba import njit
 
 from cr_control.core.parameters import Param, ParameterError
-from cr_control.models.arm_model import TOOL_FRAME, LinkParameters, build_model
 from cr_sim.models.constrained_dynamics import (
     mechanism_dynamics_into,
     mechanism_work_size,
     planar_mechanism,
 )
-from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS, arm_parameters
+from cr_sim.plants.arm_on_surface import (
+    NOISE_PARAMETERS,
+    arm_parameters,
+    robot_parameters,
+    thesis_chain,
+)
 from cr_sim.plants.base import (
     ConstrainedPlant,
     JointLimits,
@@ -82,14 +91,28 @@ from cr_sim.plants.base import (
 )
 
 NAME = "flexible_joint_surface"
+#: The frame the plant adds at the origin of the base frame (= the model's world frame), to
+#: which the surface is fixed (a trailing "_" added while the URDF has a frame of the name).
+SURFACE_FRAME = "surface"
+
+
+def motor_joints(link_joints) -> tuple[str, ...]:
+    """Names of the motors behind the link joints ``link_joints``."""
+    return tuple(f"{name}_motor" for name in link_joints)
+
+
+def sensor_names(link_joints) -> tuple[str, ...]:
+    """Values of ``sensors()`` with the link joints ``link_joints``."""
+    return ("lambda", "phi", "phi_dot", *(f"{m}_acceleration" for m in motor_joints(link_joints)))
+
+
+#: The joints and sensors with the thesis's arm.
 LINK_JOINTS = ("joint1", "joint2")
-MOTOR_JOINTS = ("joint1_motor", "joint2_motor")
-#: A world frame of the URDF (at the origin) to which the surface is fixed.
-WORLD_FRAME = "base_link"
-#: Values of ``sensors()``.
-SENSORS = ("lambda", "phi", "phi_dot", "joint1_motor_acceleration", "joint2_motor_acceleration")
+MOTOR_JOINTS = motor_joints(LINK_JOINTS)
+SENSORS = sensor_names(LINK_JOINTS)
 
 PARAMETERS = [
+    *robot_parameters("two_link_arm.urdf", "the 2-link arm of chapters 3 and 6 (0.3 m links)"),
     *arm_parameters(length=0.3, com=0.15),
     Param("joint_stiffness", [10.0, 10.0],
           "Joint stiffness K_s per joint (N m/rad) (6.1-6.3; 6.3.1 case 1: 10, case 2: 50; "
@@ -233,21 +256,25 @@ class FlexibleJointSurface(ConstrainedPlant):
             raise ParameterError(f"surface_normal must be non-zero, got {list(raw)}")
         if not values["motor_effort_limit"] > 0.0:
             raise ParameterError("motor_effort_limit must be > 0")
-        try:
-            self.model = build_model(LinkParameters(
-                length=list(values["link_length"]), com=list(values["link_com"]),
-                mass=list(values["link_mass"]), inertia=list(values["link_inertia"]),
-                gravity=values["gravity"]))
-        except ValueError as exc:
-            raise ParameterError(str(exc)) from exc
+        chain = thesis_chain(values, NAME)
+        self.model = chain.model
+        surface_frame = SURFACE_FRAME
+        while self.model.existFrame(surface_frame):
+            surface_frame += "_"
+        self.model.addFrame(pin.Frame(surface_frame, 0, 0, pin.SE3.Identity(),
+                                      pin.FrameType.OP_FRAME))
         self.data = self.model.createData()
-        self._tool = self.model.getFrameId(TOOL_FRAME)
+        self._tool = chain.tip
+        self.link_joint_names = chain.joint_names
+        self.command_joint_names = motor_joints(chain.joint_names)
+        self.joint_names = (*chain.joint_names, *self.command_joint_names)
+        self.sensor_fields = sensor_names(chain.joint_names)
         self.normal = raw / norm                                  # n (unit, world)
         self.offset = float(values["surface_offset"]) / norm      # Phi = n . p + offset
         self.stiffness, self.motor_inertia = ks.copy(), jm.copy()
         self.effort_limit = float(values["motor_effort_limit"])
         # Phi = n . p_tool - offset_mech in constrained_dynamics' convention
-        self.mech = planar_mechanism(self.model, TOOL_FRAME, WORLD_FRAME,
+        self.mech = planar_mechanism(self.model, values["tip_link"], surface_frame,
                                      np.array([*self.normal, 0.0]), -self.offset,
                                      values["baumgarte_alpha"], values["baumgarte_beta"])
         self.flex = np.concatenate([ks, jm])
@@ -368,7 +395,7 @@ class FlexibleJointSurface(ConstrainedPlant):
         watches q_l'."""
         model = self.model
         out = []
-        for i, name in enumerate(LINK_JOINTS):
+        for i, name in enumerate(self.link_joint_names):
             limit = float(model.velocityLimit[model.joints[model.getJointId(name)].idx_v])
             if 0.0 < limit < math.inf:
                 out.append((i, limit))

@@ -1,9 +1,13 @@
 """Chapter 2 plant: a 2-link arm constrained by an object moved by a 1-DOF manipulator
 (thesis 2.1-2.4, 2.91-2.104, fig. 2.3).
 
-One Pinocchio model from ``config/moving_object.urdf`` holds both manipulators: the arm
-(joints joint1, joint2; vertical plane, base at (a, 0)) and the prismatic x axis object_x
-carrying the object, whose frame sits at (q2, b). The closed chain is the holonomic
+One Pinocchio model holds both manipulators: the arm (joints joint1, joint2; vertical plane,
+base at (a, 0)) and the prismatic x axis object_x carrying the object, whose frame sits at
+(q2, b). The arm is the planar 2-link arm of the robot parameters (default
+``config/two_link_arm.urdf``; any planar 2-link URDF, whose joint names the plant then
+publishes, with ``link_*`` overriding its geometry and inertia; its ``base_link`` placed at
+(a, 0)); the object axis is the one of ``config/moving_object.urdf`` (limits; the
+``object_*`` parameters set its height and mass). The closed chain is the holonomic
 constraint (2.94) of the end effector on the line x_co - y_co = 0 of the object frame,
 
     Phi(q) = n . (p_tool - p_object) = 0,   n = (1, -1)/sqrt(2) = n_c (2.13),
@@ -46,25 +50,36 @@ import pinocchio as pin
 
 from cr_control.core.parameters import Param, ParameterError
 from cr_control.core.paths import config_file
-from cr_control.models.arm_model import LinkParameters, build_model, two_link_inverse_kinematics
+from cr_control.models.arm_model import two_link_inverse_kinematics
 from cr_sim.models.constrained_dynamics import (
     mechanism_dynamics_into,
     mechanism_rk4,
     mechanism_work_size,
     planar_mechanism,
 )
-from cr_sim.plants.arm_on_surface import NOISE_PARAMETERS, arm_parameters
+from cr_sim.plants.arm_on_surface import (
+    NOISE_PARAMETERS,
+    arm_parameters,
+    robot_parameters,
+    thesis_chain,
+)
 from cr_sim.plants.base import ConstrainedPlant, Measurement, max_contact_force_parameter
 
 NAME = "moving_object"
+#: The URDF of chapter 2's two manipulators: the plant takes the object axis from it.
 URDF_NAME = "moving_object.urdf"
-JOINT_NAMES = ("joint1", "joint2", "object_x")
+OBJECT_JOINT = "object_x"
+#: The object's frame: the constraint's line lies in it.
+OBJECT_FRAME = "object_frame"
+#: The joints with the thesis's arm (the arm's joints are its URDF's).
+JOINT_NAMES = ("joint1", "joint2", OBJECT_JOINT)
 
 #: Desired motion (2.106-2.107) at t = 0: the default initial state.
 X_O0 = 0.1 * (1.0 - math.sin(12.0))
 X_CO0 = -math.cos(2.0) / 12.0
 
 PARAMETERS = [
+    *robot_parameters("two_link_arm.urdf", "the 2-link arm of chapters 2, 3 and 6 (0.3 m links)"),
     *arm_parameters(length=0.3, com=0.15),
     Param("base_position", [0.2, 0.0], "Base of manipulator 1, (a, 0) (m) (2.4: a = 0.2).",
           "vector", 2, read_only=True),
@@ -98,20 +113,38 @@ PARAMETERS = [
 ]
 
 
-def build_moving_object_model(values: dict) -> pin.Model:
-    """The Pinocchio model of both manipulators from the URDF with the plant's parameters."""
-    model = build_model(LinkParameters(
-        length=list(values["link_length"]), com=list(values["link_com"]),
-        mass=list(values["link_mass"]), inertia=list(values["link_inertia"]),
-        gravity=values["gravity"]), config_file(URDF_NAME))
+def _object_axis() -> tuple[pin.SE3, list[np.ndarray]]:
+    """Placement and limits (effort, velocity, lower, upper) of the object axis of URDF_NAME."""
+    urdf = pin.buildModelFromUrdf(str(config_file(URDF_NAME)))
+    j = urdf.getJointId(OBJECT_JOINT)
+    if j >= urdf.njoints or urdf.joints[j].shortname() != "JointModelPX":
+        raise ParameterError(f"{URDF_NAME} has no prismatic x joint {OBJECT_JOINT}")
+    iv, iq = urdf.joints[j].idx_v, urdf.joints[j].idx_q
+    limits = [np.array([limit[i]]) for limit, i in (
+        (urdf.effortLimit, iv), (urdf.velocityLimit, iv), (urdf.lowerPositionLimit, iq),
+        (urdf.upperPositionLimit, iq))]
+    return pin.SE3(urdf.jointPlacements[j]), limits
+
+
+def build_moving_object_model(values: dict) -> tuple[pin.Model, int]:
+    """The Pinocchio model of both manipulators with the plant's parameters: the planar 2-link
+    arm of the robot parameters (joints 1 and 2, its base at ``base_position``) and the object
+    axis of URDF_NAME (joint 3, at ``object_height``, carrying ``object_mass``); and the frame
+    id of the arm's tip."""
+    chain = thesis_chain(values, NAME)
+    model = chain.model
     a = values["base_position"]
-    model.jointPlacements[model.getJointId("joint1")].translation = np.array([a[0], a[1], 0.0])
-    obj = model.getJointId("object_x")
-    model.jointPlacements[obj].translation = np.array([0.0, values["object_height"], 0.0])
+    model.jointPlacements[1].translation = np.array([a[0], a[1], 0.0])
+    placement, limits = _object_axis()
+    placement.translation = np.array([0.0, values["object_height"], 0.0])
+    for name in (OBJECT_JOINT, OBJECT_FRAME):
+        if model.existFrame(name):
+            raise ParameterError(f"{NAME}: the arm's URDF has a link or joint {name!r}, a name "
+                                 "of the object's axis")
+    obj = model.addJoint(0, pin.JointModelPX(), placement, OBJECT_JOINT, *limits)
+    model.addBodyFrame(OBJECT_FRAME, obj, pin.SE3.Identity(), model.addJointFrame(obj))
     model.inertias[obj] = pin.Inertia(values["object_mass"], np.zeros(3), np.eye(3) * 1e-3)
-    if tuple(model.names[1:]) != JOINT_NAMES:
-        raise ParameterError(f"{URDF_NAME} joints {list(model.names[1:])}, expected {JOINT_NAMES}")
-    return model
+    return model, chain.tip
 
 
 class MovingObjectPlant(ConstrainedPlant):
@@ -126,12 +159,12 @@ class MovingObjectPlant(ConstrainedPlant):
         normal = np.asarray(values["constraint_normal"], dtype=float)
         if not math.hypot(*normal) > 0.0 or normal[1] == 0.0:
             raise ParameterError("constraint_normal must be non-zero with a non-zero y component")
-        self.model = build_moving_object_model(values)
+        self.model, self._tool = build_moving_object_model(values)
         self.data = self.model.createData()
         self.arm = SimpleNamespace(model=self.model, gravity=self.gravity)
-        self.joint_names = JOINT_NAMES
+        self.joint_names = tuple(self.model.names[1:])
         self.normal = normal / math.hypot(*normal)        # n_c (world = object frame, R_o = I)
-        self.mech = planar_mechanism(self.model, "tool0", "object_frame",
+        self.mech = planar_mechanism(self.model, values["tip_link"], OBJECT_FRAME,
                                      np.array([*self.normal, 0.0]), 0.0,
                                      values["baumgarte_alpha"], values["baumgarte_beta"])
         self.substeps = int(values["substeps"])
@@ -166,8 +199,7 @@ class MovingObjectPlant(ConstrainedPlant):
         """J_Phi(q) (3,): Phi' = J_Phi q'."""
         pin.computeJointJacobians(self.model, self.data, q)
         pin.updateFramePlacements(self.model, self.data)
-        tool = self.model.getFrameId("tool0")
-        J = pin.getFrameJacobian(self.model, self.data, tool, pin.LOCAL_WORLD_ALIGNED)[:2]
+        J = pin.getFrameJacobian(self.model, self.data, self._tool, pin.LOCAL_WORLD_ALIGNED)[:2]
         out = self.normal @ J
         out[2] = -self.normal[0]
         return out

@@ -534,7 +534,7 @@ class URDFSurface(Plant):
         return [*self._x[self._n:].tolist(), *[0.0] * self._locked_q.size]
 
     @property
-    def held(self) -> np.ndarray:
+    def applied_effort(self) -> np.ndarray:
         """The joint torques held now (the last accepted command)."""
         return self._tau.copy()
 
