@@ -174,15 +174,21 @@ def unlimited_joints(plant: Plant, limiter: CommandLimiter) -> list[str]:
 def initial_command(plant: Plant) -> np.ndarray:
     """What the plant holds before the first command: its own held input where it has one
     (``plant.held``; the ch. 4 plant starts in equilibrium with delta_c = delta), else the
-    current positions for position plants (hold still) and zero efforts for effort plants.
-    A realtime plant steps with it until a controller answers; zero positions would pull
-    the ch. 4 end effector off the constraint."""
+    current positions for position plants (hold still), and for effort plants the gravity
+    torque G(q) where the plant knows it (the arm is held as a real arm's brakes or its own
+    gravity compensation hold it until a controller takes over), else zero efforts.
+    A realtime plant steps with it until a controller answers (a few ms: a 20 kg arm under
+    zero torque reached 0.84 rad/s at the Panda's elbow before the first command; zero
+    positions would pull the ch. 4 end effector off the constraint)."""
     n = len(plant.command_joints)
     held = getattr(plant, "held", None)
     if held is not None and np.shape(held) == (n,) and np.all(np.isfinite(held)):
         return np.array(held, dtype=float)
     if plant.command_interface == "position":
         return np.array(plant.measurement().position, dtype=float)
+    gravity = plant.gravity_torque(plant.measurement().position)
+    if gravity is not None and gravity.shape == (n,) and np.all(np.isfinite(gravity)):
+        return gravity
     return np.zeros(n)
 
 
