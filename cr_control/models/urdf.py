@@ -17,11 +17,29 @@ the controlled chain. :func:`load_chain` builds the model once, at start-up:
 
 The chain's joint limits (position, velocity, effort) and its ``<dynamics>`` (viscous
 damping, Coulomb friction) come with it (:class:`ChainModel`).
+
+A tool on a wrist sensor (:class:`Tool`) replaces what the URDF mounts beyond the sensor's
+link, in the URDF's XML before Pinocchio parses it (so every frame of the URDF survives):
+
+- every link beyond ``sensor_link`` (its descendants in the URDF tree: the Panda's hand and
+  fingers beyond ``panda_link8``) loses its ``<inertial>``;
+- a link ``tool`` carrying the tool's mass, centre of mass and inertia is attached to
+  ``sensor_link`` by a fixed joint ``tool_joint`` at its origin (the ``tool`` frame is the
+  sensor frame);
+- with ``tcp`` given, a massless link ``tool_tcp`` is attached to ``sensor_link`` at that
+  offset by a fixed joint ``tool_tcp_joint`` (a contact point where the URDF has none, e.g.
+  the UR5's flange ``tool0``; ``tip_link`` may name it).
+
+The sensor must ride on the tip's body: ``sensor_link`` must lie on the path from
+``base_link`` to ``tip_link`` with only fixed joints between it and the tip; else, and for a
+negative mass, a non-physical inertia or a URDF that already has a link or joint of those
+names, :class:`RobotModelError`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import sys
 import tempfile
@@ -51,6 +69,71 @@ MIN_MASS = 1e-9
 
 class RobotModelError(ValueError):
     """The robot cannot be built from what was given; the message (one line) says why."""
+
+
+#: Links (and their fixed joints, ``<link>_joint``) :func:`load_chain` adds for a tool.
+TOOL_LINK, TCP_LINK = "tool", "tool_tcp"
+
+
+def _floats(values, size: int, what: str) -> tuple[float, ...]:
+    try:
+        floats = tuple(float(v) for v in np.asarray(values, dtype=float).reshape(-1))
+    except (TypeError, ValueError):
+        floats = ()
+    if len(floats) != size or not all(math.isfinite(v) for v in floats):
+        given = " ".join(str(values).split())          # one line
+        raise RobotModelError(f"{what} must be a finite number, got {given}" if size == 1
+                              else f"{what} needs {size} finite values, got {given}")
+    return floats
+
+
+@dataclass(frozen=True)
+class Tool:
+    """A rigid tool mounted on a wrist force/torque sensor, for :func:`load_chain`.
+
+    ``sensor_link``: the link whose frame is the sensor frame (the flange: ``panda_link8``,
+    ``tool0``); ``mass`` (kg, >= 0); ``com`` (m): the centre of mass in the sensor frame;
+    ``inertia`` (kg m^2): xx, xy, xz, yy, yz, zz about the centre of mass in the sensor
+    frame's axes; ``tcp`` (m): a contact point in the sensor frame (adds the link
+    ``tool_tcp``), or None. Values are stored as tuples of floats; RobotModelError (one
+    line) for a negative mass or a non-physical inertia (not positive semi-definite, or a
+    principal moment above the sum of the other two, or rotational inertia without mass).
+    """
+
+    sensor_link: str
+    mass: float = 0.0
+    com: tuple[float, ...] = (0.0, 0.0, 0.0)
+    inertia: tuple[float, ...] = (0.0,) * 6
+    tcp: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        mass = _floats(self.mass, 1, "tool mass")[0]
+        if mass < 0.0:
+            raise RobotModelError(f"tool mass must be >= 0 kg, got {mass:g}")
+        object.__setattr__(self, "mass", mass)
+        object.__setattr__(self, "com", _floats(self.com, 3, "tool com"))
+        object.__setattr__(self, "inertia", _floats(self.inertia, 6, "tool inertia"))
+        if self.tcp is not None:
+            object.__setattr__(self, "tcp", _floats(self.tcp, 3, "tool tcp"))
+        moments = np.linalg.eigvalsh(self.inertia_matrix)
+        tol = 1e-12 + 1e-9 * float(np.max(np.abs(moments)))
+        if moments[0] < -tol or moments[2] > moments[0] + moments[1] + tol:
+            raise RobotModelError(f"tool inertia {list(self.inertia)} is not physical: its principal "
+                                  f"moments {np.round(moments, 12).tolist()} must be >= 0 and each at "
+                                  "most the sum of the other two")
+        if mass == 0.0 and moments[2] > tol:
+            raise RobotModelError("tool inertia without tool mass is not physical")
+
+    @property
+    def inertia_matrix(self) -> np.ndarray:
+        """The 3 x 3 inertia about the centre of mass, sensor frame axes (kg m^2)."""
+        xx, xy, xz, yy, yz, zz = self.inertia
+        return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+
+    @property
+    def spatial_inertia(self) -> pin.Inertia:
+        """The tool's spatial inertia about the sensor origin, sensor frame axes."""
+        return pin.Inertia(self.mass, np.array(self.com), self.inertia_matrix)
 
 
 @dataclass(frozen=True)
@@ -83,6 +166,8 @@ class ChainModel:
     limits: JointLimits
     damping: np.ndarray
     friction: np.ndarray
+    #: The tool on a wrist sensor the model carries (:class:`Tool`), or None.
+    tool: Tool | None = None
 
     @property
     def n(self) -> int:
@@ -225,13 +310,97 @@ def _locked_configuration(model: pin.Model) -> np.ndarray:
     return q
 
 
+def _xyz(values) -> str:
+    return " ".join(repr(float(v)) for v in values)
+
+
+def _with_tool(xml: str, base_link: str, tip_link: str, tool: Tool) -> str | None:
+    """The URDF ``xml`` with ``tool`` mounted on its sensor link (module docstring), or None
+    where the chain itself is wrong (not XML, no such base or tip, the base not above the
+    tip): the checks on the parsed model then say why. RobotModelError for a sensor link
+    the tool cannot ride on."""
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError:
+        return None
+    links = {link.get("name"): link for link in root.findall("link")}
+    joint_names = {joint.get("name") for joint in root.findall("joint")}
+    sensor = tool.sensor_link
+    if sensor not in links:
+        raise RobotModelError(f"sensor_link {sensor!r} is not a link of the URDF")
+    added = [TOOL_LINK] + ([TCP_LINK] if tool.tcp is not None else [])
+    for name in added:
+        if name in links or f"{name}_joint" in joint_names:
+            raise RobotModelError(f"the URDF already has a link or joint named {name!r}: cannot "
+                                  "mount the tool")
+    parent_joint = {}                               # child link -> the joint carrying it
+    children: dict[str, list[str]] = {}
+    for joint in root.findall("joint"):
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is not None and child is not None:
+            parent_joint[child.get("link")] = joint
+            children.setdefault(parent.get("link"), []).append(child.get("link"))
+    # what the URDF mounts beyond the sensor loses its mass: the tool replaces it
+    beyond, stack = set(), list(children.get(sensor, []))
+    while stack:
+        link = stack.pop()
+        if link not in beyond:
+            beyond.add(link)
+            stack += children.get(link, [])
+    for link in beyond:
+        for inertial in links[link].findall("inertial") if link in links else ():
+            links[link].remove(inertial)
+    # the tool's body (its frame: the sensor frame) and its contact point
+    body = ET.Element("link", name=TOOL_LINK)
+    inertial = ET.SubElement(body, "inertial")
+    ET.SubElement(inertial, "origin", xyz=_xyz(tool.com), rpy="0 0 0")
+    ET.SubElement(inertial, "mass", value=repr(tool.mass))
+    ET.SubElement(inertial, "inertia", **dict(zip(("ixx", "ixy", "ixz", "iyy", "iyz", "izz"),
+                                                  (repr(v) for v in tool.inertia), strict=True)))
+    mounted = [(body, (0.0, 0.0, 0.0))]
+    if tool.tcp is not None:
+        mounted.append((ET.Element("link", name=TCP_LINK), tool.tcp))
+    for link, offset in mounted:
+        name = link.get("name")
+        joint = ET.Element("joint", name=f"{name}_joint", type="fixed")
+        ET.SubElement(joint, "parent", link=sensor)
+        ET.SubElement(joint, "child", link=name)
+        ET.SubElement(joint, "origin", xyz=_xyz(offset), rpy="0 0 0")
+        root.extend([link, joint])
+        links[name], parent_joint[name] = link, joint
+    # the sensor rides on the tip's body: on the path base -> tip, only fixed joints to the tip
+    if tip_link not in links or base_link not in links:
+        return None
+    path = [tip_link]
+    while path[-1] != base_link and path[-1] in parent_joint and len(path) <= len(links):
+        path.append(parent_joint[path[-1]].find("parent").get("link"))
+    if path[-1] != base_link:
+        return None
+    if sensor not in path:
+        raise RobotModelError(f"sensor_link {sensor!r} is not on the chain from base_link "
+                              f"{base_link!r} to tip_link {tip_link!r}")
+    for link in path[:path.index(sensor)]:
+        joint = parent_joint[link]
+        if joint.get("type") != "fixed":
+            raise RobotModelError(f"sensor_link {sensor!r} is not fixed to tip_link {tip_link!r}: "
+                                  f"joint {joint.get('name')!r} moves between them (the sensor must "
+                                  "ride on the tip's link)")
+    return ET.tostring(root, encoding="unicode")
+
+
 def load_chain(robot_description: str, urdf_file: str, base_link: str, tip_link: str,
-               gravity: np.ndarray | None = None) -> ChainModel:
+               gravity: np.ndarray | None = None, tool: Tool | None = None) -> ChainModel:
     """The chain ``base_link`` -> ``tip_link`` of the URDF (see the module docstring).
 
     ``gravity`` (m/s^2, base frame) replaces Pinocchio's default (0, 0, -9.81) if given.
+    ``tool``: a tool on a wrist sensor replacing what the URDF mounts beyond the sensor's
+    link (module docstring); the model then carries it, and ``tip_link`` may be ``tool_tcp``
+    if the tool has a ``tcp``.
     """
-    full = parse_urdf(urdf_text(robot_description, urdf_file))
+    xml = urdf_text(robot_description, urdf_file)
+    if tool is not None:
+        xml = _with_tool(xml, base_link, tip_link, tool) or xml
+    full = parse_urdf(xml)
     base = _body_frame(full, base_link, "base_link")
     tip = _body_frame(full, tip_link, "tip_link")
     to_base, to_tip = _supporting_joints(full, base), _supporting_joints(full, tip)
@@ -257,8 +426,11 @@ def load_chain(robot_description: str, urdf_file: str, base_link: str, tip_link:
     names = tuple(model.names[1:])
     _check_inertia(model, names)
     kinds = tuple(JOINT_KINDS[model.joints[j].shortname()] for j in range(1, model.njoints))
+    if tool is not None and not model.existFrame(TOOL_LINK, pin.BODY):
+        raise RobotModelError(f"cannot mount the tool on sensor_link {tool.sensor_link!r}")
     return ChainModel(model, tip, base_link, tip_link, names, kinds, _limits(model, kinds),
-                      np.array(model.damping, dtype=float), np.array(model.friction, dtype=float))
+                      np.array(model.damping, dtype=float), np.array(model.friction, dtype=float),
+                      tool)
 
 
 def _check_inertia(model: pin.Model, names: tuple[str, ...]) -> None:

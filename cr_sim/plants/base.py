@@ -17,12 +17,12 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 
 
 @dataclass
@@ -30,7 +30,9 @@ class Measurement:
     """What the plant's sensors report at ``time`` (s).
 
     ``force`` is the measured contact force on the end effector in the world frame
-    (3 components; planar plants leave z at 0).
+    (3 components; planar plants leave z at 0); ``torque`` the measured torque (3, zero for
+    every plant but ``urdf_surface`` with a wrist sensor, whose ``force`` and ``torque`` are
+    then the sensor's wrench in its own frame: the plant's ``wrench_frame``).
     """
 
     time: float
@@ -38,6 +40,7 @@ class Measurement:
     velocity: np.ndarray
     effort: np.ndarray
     force: np.ndarray
+    torque: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 @dataclass
@@ -61,7 +64,7 @@ def max_contact_force_parameter(default: float, why: str) -> Param:
     with its default and the reason for it (which task force it is a multiple of)."""
     return Param("max_contact_force", default, "Force reflex (libfranka's Cartesian reflex): "
                  "a contact force above this (N) safe-stops the plant until resume is set; "
-                 f"{why}", "positive", read_only=True)
+                 f"{why}", "positive", read_only=True, bound=Bound.FORCE)
 
 
 @njit(cache=True, error_model="numpy")
@@ -101,6 +104,9 @@ class Plant(ABC):
         return tuple(self.command_joint_names or self.joint_names)
     #: "effort" (torque-commanded) or "position" (command-displacement plants, ch. 4).
     command_interface: str = "effort"
+    #: The frame the measured wrench is in (the published frame_id): the thesis plants'
+    #: world frame; urdf_surface's base link or wrist-sensor link.
+    wrench_frame: str = "world"
     #: Safe stop (brakes): viscous damping K_d (N m s/rad) of tau = G(q) - K_d q' - K_p (q - q_stop).
     brake_damping: float = 30.0
     #: Safe stop: holding stiffness K_p (N m/rad) about the position where braking began.

@@ -6,7 +6,8 @@ The serial chain ``base_link`` -> ``tip_link`` of a URDF (:func:`cr_control.mode
 every other joint locked where the URDF's neutral position, clipped into its limits, puts
 it; what it carries rides on the chain as rigid mass), torque-commanded, whose tip point
 touches a compliant environment (:mod:`cr_sim.models.contact3d`). Frames: everything is
-in the base frame (``base_link``): gravity, the surface, the contact force (``wrench_frame``).
+in the base frame (``base_link``): gravity, the surface, the contact force; the measured
+wrench is in ``wrench_frame``: the base frame (the ideal sensor) or the wrist sensor's frame.
 
 Equations (state x = [q, q'], n chain joints)
 ----------------------------------------------
@@ -29,6 +30,10 @@ Contact law (unilateral, at the tip point r, outward unit normal n, depth delta)
 - sphere: delta = R - |r - c|, n = (r - c)/|r - c|, the environment inside the ball;
   default c = r_0 - R n_param (touching the tip at its initial position from below);
 - none: free motion.
+
+``start_clearance`` d >= 0 moves the surface (given or default) away from the tip's initial
+position r_0 by d along its outward normal there (plane: p - d n; sphere: c - d (r_0 -
+c)/|r_0 - c|): the robot starts d above the table, at rest, and has to come down to it.
 
 Defaults: K_e = 5000 N/m (a compliant pad on a table: 2 mm at 10 N), D_e = 20 N s/m (a
 lightly damped pad: 0.07 of critical for the Panda at home, whose tip weighs m_n = 4 kg
@@ -54,12 +59,44 @@ bounds the magnitude of both roots of m s^2 + D s + K. Not counted: the regulari
 Coulomb friction's slope mu f_n/eps (it depends on the force: set ``substeps`` by hand
 for stiff sliding) and changes of the apparent mass away from q_0.
 
+Wrist sensor
+------------
+``sensor_frame`` empty (the default): the ideal sensor of the thesis plants, force = f (base
+frame), torque = 0, noise ``force_noise_std``. ``sensor_frame`` = S, a link rigidly fixed to
+the tip's body (the flange: ``panda_link8``, ``tool0``): a force/torque sensor there, as
+force_torque_sensor_broadcaster publishes it (frame_id = S). The chain is built with a rigid
+tool on S (:class:`cr_control.models.urdf.Tool`: mass m = ``tool_mass``, centre of mass c =
+``tool_com`` and inertia I_c = ``tool_inertia`` in S; everything the URDF mounts beyond S,
+the Panda's hand, loses its mass), so the arm really carries it; ``tool_tcp`` adds a link
+``tool_tcp`` at that point of S (then ``tip_link: tool_tcp``). The sensor reads the wrench
+the tool side exerts on the arm at the origin of S, in S's axes (Newton-Euler for the tool:
+what the arm must supply to move it, with the sign turned):
+
+    F = R^T f + m (R^T g - a_c)                                         + b_F + n_F
+    T = p x R^T f + c x m (R^T g - a_c) - (I_c alpha + omega x I_c omega) + b_T + n_T
+    a_c = a_o + omega x v_o + alpha x c + omega x (omega x c)
+
+- R: rotation base <- S; f: the contact force on the tip (base frame); g: gravity (base
+  frame); p: the tip in S (constant: the sensor rides on the tip's body);
+- (v_o, omega), (a_o, alpha): S's spatial velocity and acceleration in S (Pinocchio
+  ``LOCAL``), so a_c is the classical acceleration of the tool's centre of mass in S;
+- b = ``ft_bias`` (6, S), n white noise of std ``ft_noise_std`` (force, torque; every
+  component, fresh each measurement).
+
+At rest out of contact: F = m R^T g, the tool's weight as seen in S (+m g along the flange
+axis when it points down), T = c x F. The accelerations are those of the state measured:
+q'' from Pinocchio's ABA with the held command and the contact (the integrator's own
+derivative there), then S's velocity and acceleration from ``forwardKinematics``.
+:meth:`URDFSurface.contact_wrench` gives the true contact wrench in the base frame (force
+f, zero torque about the tip, the tip's position) for ``/plant/contact_wrench``: analysis
+and tests, no controller reads it.
+
 Joints
 ------
 ``joint_names`` = the chain's joints, then every other joint of the URDF with one
 coordinate (the Panda's fingers), reported at their locked position with zero velocity
 and effort; ``command_joint_names`` = the chain's joints: controllers pick their joints by
-name. Measurement noise (if asked) is added to the chain's joints and to the force only.
+name. Measurement noise (if asked) is added to the chain's joints and to the wrench only.
 
 Cost
 ----
@@ -70,21 +107,28 @@ sensors are evaluated lazily, when asked, at the state the step ended in. Measur
 Panda (1 ms step, pressing 10 N; an empty Python ``for`` iteration took 14-15 ns in the
 same run): 17 us with 1 substep, 34 us with 2, 65 us with 4; ``measurement()`` adds 6 us.
 Of each ~4 us stage, Pinocchio takes ~3.2 us (aba 2.4, the Jacobian 0.8), the glue ~0.8.
+The wrist sensor leaves the step as it is (the tool is one more rigid body on the last
+link: 17.5 us either way) and adds ~6 us to ``measurement()`` (a step and a measurement:
+23.0 us without, 28.9 with, 31.1 with its noise drawn): one more ABA (2.5 us), second-order
+forward kinematics (0.8), the sensor frame's placement, velocity and acceleration (0.4
+each) and a compiled kernel (0.4).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
 from numba import njit
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.models.urdf import (
     CONTINUOUS,
     ChainModel,
     RobotModelError,
+    Tool,
     _locked_configuration,
     load_chain,
     parse_urdf,
@@ -120,36 +164,61 @@ PARAMETERS = [
     Param("tip_link", "tool0", "Last link of the chain: its origin is the contact point.",
           "string", read_only=True),
     Param("gravity", [0.0, 0.0, -9.81], "Gravitational acceleration in the base frame (m/s^2).",
-          "vector", 3, read_only=True),
+          "vector", 3, read_only=True, bound=Bound.GRAVITY),
     Param("initial_joint_positions", [], "Chain joint positions at t = 0, at rest (rad or m); "
-          "empty: Pinocchio's neutral clipped into the joint limits.", "vector", read_only=True),
+          "empty: Pinocchio's neutral clipped into the joint limits.", "vector", read_only=True,
+          bound=Bound.JOINT),
     Param("surface", "plane", "Environment: a plane, a sphere (pressed from outside) or none.",
           "choice", read_only=True, choices=tuple(SURFACES)),
     Param("surface_point", [], "A point of the plane, base frame (m); empty: the tip's initial "
-          "position (touching at zero force).", "vector", read_only=True),
+          "position (touching at zero force).", "vector", read_only=True, bound=Bound.LENGTH),
     Param("surface_normal", [0.0, 0.0, 1.0], "Outward normal of the plane (normalised; the "
           "environment is on the side n.(r - point) < 0); sphere with surface_centre empty: "
           "direction from the centre to the tip's initial position.", "vector", 3,
-          read_only=True),
+          read_only=True, bound=Bound.SCALE),
     Param("surface_centre", [], "Centre of the sphere, base frame (m); empty: the tip's initial "
           "position - surface_radius * surface_normal (touching at zero force).", "vector",
-          read_only=True),
-    Param("surface_radius", 0.1, "Radius of the sphere (m).", "positive", read_only=True),
+          read_only=True, bound=Bound.LENGTH),
+    Param("surface_radius", 0.1, "Radius of the sphere (m).", "positive", read_only=True, bound=Bound.LENGTH),
     Param("stiffness", 5000.0, "Contact stiffness K_e along the normal (N/m): a compliant pad, "
-          "2 mm at 10 N.", "positive", read_only=True),
+          "2 mm at 10 N.", "positive", read_only=True, bound=Bound.CONTACT_STIFFNESS),
     Param("damping", 20.0, "Contact damping D_e along the normal (N s/m); the normal force "
-          "max(K_e depth - D_e n.r', 0) never pulls.", "nonnegative", read_only=True),
+          "max(K_e depth - D_e n.r', 0) never pulls.", "nonnegative", read_only=True, bound=Bound.DAMPING),
     Param("friction_coulomb", 0.0, "Tangential Coulomb friction coefficient mu (regularised).",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.SCALE),
     Param("friction_viscous", 0.0, "Tangential viscous friction c_v while in contact (N s/m).",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.DAMPING),
     Param("friction_velocity_epsilon", 1e-3, "Regularisation eps of the Coulomb friction: "
-          "mu f_n v_t/sqrt(|v_t|^2 + eps^2) (m/s).", "positive", read_only=True),
+          "mu f_n v_t/sqrt(|v_t|^2 + eps^2) (m/s).", "positive", read_only=True, bound=Bound.SPEED),
     *NOISE_PARAMETERS,
     max_contact_force_parameter(50.0, "5 x the wiping task's 10 N (cr_session --robot)."),
     Param("substeps", 0, "RK4 substeps per period; 0 = automatic: h omega_c <= 0.5 at the "
-          "initial pose (see the module docstring).", "integer", read_only=True),
+          "initial pose (see the module docstring).", "integer", read_only=True, bound=Bound.SUBSTEPS),
+    Param("sensor_frame", "", "Wrist force/torque sensor: the link whose frame the wrench is "
+          "measured in and published in (the flange: panda_link8, tool0); it carries the tool "
+          "(tool_*) and has a bias and noise (ft_*). Empty: the ideal sensor (the contact force "
+          "at the tip, base frame, torque 0).", "string", read_only=True),
+    Param("tool_mass", 0.0, "Mass of the tool on the wrist sensor (kg); it replaces what the URDF "
+          "mounts beyond sensor_frame (the Panda's hand).", "nonnegative", read_only=True,
+          bound=Bound.MASS),
+    Param("tool_com", [0.0, 0.0, 0.0], "The tool's centre of mass in the sensor frame (m).",
+          "vector", 3, read_only=True, bound=Bound.LENGTH),
+    Param("tool_inertia", [0.0] * 6, "The tool's inertia about its centre of mass, sensor frame "
+          "axes (kg m^2): xx, xy, xz, yy, yz, zz.", "vector", 6, read_only=True, bound=Bound.INERTIA),
+    Param("tool_tcp", [], "A contact point on the tool in the sensor frame (m): adds the link "
+          "tool_tcp (then tip_link: tool_tcp); empty: none.", "vector", read_only=True,
+          bound=Bound.LENGTH),
+    Param("ft_bias", [0.0] * 6, "Constant bias of the wrist sensor, sensor frame: fx, fy, fz (N), "
+          "tx, ty, tz (N m).", "vector", 6, read_only=True, bound=Bound.FORCE),
+    Param("ft_noise_std", [0.0, 0.0], "White noise of the wrist sensor, std: force (N), torque "
+          "(N m), on every component.", "nonnegative_vector", 2, read_only=True, bound=Bound.FORCE),
+    Param("start_clearance", 0.0, "The surface starts this far (m) from the tip, moved away along "
+          "its outward normal: the robot starts above the table (sphere: the centre moves away).",
+          "nonnegative", read_only=True, bound=Bound.LENGTH),
 ]
+
+#: The wrist sensor's parameters that must keep their defaults (zeros, empty) without sensor_frame.
+SENSOR_PARAMETERS = ("tool_mass", "tool_com", "tool_inertia", "tool_tcp", "ft_bias", "ft_noise_std")
 
 
 # -- compiled glue: one call before and one after each Pinocchio forward dynamics ------------
@@ -269,11 +338,39 @@ def _frame_jacobian_of_one_joint(model, data, q, frame, reference):
     return pin.computeFrameJacobian(model, data, q, frame, reference).reshape(6, 1)
 
 
+class ContactWrench(NamedTuple):
+    """The true contact wrench on the tool, world (base) frame: ``force`` (N), ``torque``
+    (N m) about ``point``, the tip (m; zero torque: a point contact)."""
+
+    force: np.ndarray
+    torque: np.ndarray
+    point: np.ndarray
+
+
 # -- building ----------------------------------------------------------------------------------
+def _tool(values: dict) -> Tool | None:
+    """The tool on the wrist sensor (sensor_frame set), or None (the ideal sensor; then the
+    tool_* and ft_* parameters must keep their defaults)."""
+    tcp = np.asarray(values["tool_tcp"], dtype=float)
+    if tcp.size not in (0, 3):
+        raise ParameterError(f"tool_tcp needs 3 values (or none), got {tcp.size}")
+    if not values["sensor_frame"]:
+        given = [name for name in SENSOR_PARAMETERS if np.any(np.asarray(values[name]) != 0.0)]
+        if given:
+            raise ParameterError(f"{', '.join(given)} need sensor_frame (the wrist sensor's link): "
+                                 "without it the sensor is ideal")
+        return None
+    if values["force_noise_std"] > 0.0:
+        raise ParameterError("force_noise_std is the ideal sensor's noise: with sensor_frame set, "
+                             "use ft_noise_std")
+    return Tool(values["sensor_frame"], values["tool_mass"], values["tool_com"],
+                values["tool_inertia"], tcp if tcp.size else None)
+
+
 def _chain(values: dict) -> ChainModel:
     try:
         return load_chain(values["robot_description"], values["urdf_file"], values["base_link"],
-                          values["tip_link"], values["gravity"])
+                          values["tip_link"], values["gravity"], _tool(values))
     except RobotModelError as exc:
         raise ParameterError(str(exc)) from None
 
@@ -333,9 +430,11 @@ def _surface(values: dict, r0: np.ndarray) -> np.ndarray:
         anchor = _three(values, "surface_centre", r0 - radius * normal)
     else:
         anchor = _three(values, "surface_point", r0)
-    return contact3d.packed(SURFACES[kind], anchor, normal, radius, values["stiffness"],
-                            values["damping"], values["friction_coulomb"],
-                            values["friction_viscous"], values["friction_velocity_epsilon"])
+    surface = contact3d.packed(SURFACES[kind], anchor, normal, radius, values["stiffness"],
+                               values["damping"], values["friction_coulomb"],
+                               values["friction_viscous"], values["friction_velocity_epsilon"])
+    clearance = values["start_clearance"]
+    return contact3d.moved_away(surface, r0, clearance) if clearance else surface
 
 
 class URDFSurface(Plant):
@@ -355,7 +454,10 @@ class URDFSurface(Plant):
         self._locked_names, self._locked_q = _locked_joints(values, chain)
         self.joint_names = (*chain.joint_names, *self._locked_names)
         self.command_joint_names = tuple(chain.joint_names)
-        self.wrench_frame = values["base_link"]
+        #: The frame of the measured wrench (the frame_id to publish): the sensor's, else the base.
+        self.wrench_frame = values["sensor_frame"] or values["base_link"]
+        #: The base frame: gravity, the surface and :meth:`contact_wrench` are expressed in it.
+        self.base_frame = values["base_link"]
         self.model, self._data = chain.model, chain.model.createData()
         self._query = chain.model.createData()      # for model queries, off the hot path
         self._tip = chain.tip
@@ -366,6 +468,7 @@ class URDFSurface(Plant):
         self._noisy = any(self._noise)
         self._rng = np.random.default_rng(values["noise_seed"])
         self._allocate()
+        self._wrist_sensor(values)
         self._t = 0.0
         self.reset_state(q0)
         self.step_rate = self.stiffest_rate(q0)
@@ -397,6 +500,29 @@ class URDFSurface(Plant):
         self._jacobian = _frame_jacobian if n > 1 else _frame_jacobian_of_one_joint
         self._tip_r = self._live_tip_position()
         self._fresh = False
+
+    def _wrist_sensor(self, values: dict) -> None:
+        """The wrist sensor's frame, packed tool (:func:`contact3d.packed_tool`), Pinocchio
+        data of its own, noise and the buffer of its noise-free reading; ``_sensor`` is None
+        for the ideal sensor."""
+        force_std, torque_std = values["ft_noise_std"]
+        self._ft_std = np.array([force_std] * 3 + [torque_std] * 3, dtype=float)
+        self._ft_noisy = bool(np.any(self._ft_std))
+        self._wrench = np.zeros(6)
+        self._sensed = False
+        tool = self.chain.tool
+        if tool is None:
+            self._sensor = None
+            return
+        model = self.model
+        sensor = model.getFrameId(tool.sensor_link, pin.BODY)
+        frame, tip = model.frames[sensor], model.frames[self._tip]
+        assert frame.parentJoint == tip.parentJoint       # load_chain: the sensor rides on the tip
+        point = frame.placement.actInv(tip.placement.translation)    # the tip in the sensor frame
+        self._sensor = sensor
+        self._sensor_data = model.createData()
+        self._packed_tool = contact3d.packed_tool(tool.mass, tool.com, tool.inertia_matrix, point,
+                                                  model.gravity.linear, values["ft_bias"])
 
     def _live_tip_position(self) -> np.ndarray | None:
         """A numpy view of ``data.oMf[tip].translation`` that follows every Jacobian
@@ -483,7 +609,7 @@ class URDFSurface(Plant):
         if q0.shape != (n,) or v0.shape != (n,):
             raise ValueError(f"reset_state needs {n} positions and {n} velocities")
         self._x[:n], self._x[n:] = q0, v0
-        self._fresh = False
+        self._fresh = self._sensed = False
 
     def step(self, command: np.ndarray, dt: float) -> None:
         """Advance by dt with the joint torques ``command`` held (a refused command keeps the
@@ -500,7 +626,7 @@ class URDFSurface(Plant):
             _joint_torque(J, data.oMf[tip].translation if r is None else r, work)
             _rk4_stage(aba(model, data, qp, vs, total, convention), work)
         self._t += dt
-        self._fresh = False
+        self._fresh = self._sensed = False
 
     def _evaluate(self) -> None:
         """Contact force and depth at the current state (lazily, for the sensors)."""
@@ -533,23 +659,64 @@ class URDFSurface(Plant):
         """Joint velocities in ``joint_names`` order without noise (the locked ones: 0)."""
         return [*self._x[self._n:].tolist(), *[0.0] * self._locked_q.size]
 
+    def contact_wrench(self) -> ContactWrench:
+        """The true (noise-free) contact wrench on the tool now, base frame: the contact force,
+        zero torque about the tip (a point contact) and the tip's position
+        (``/plant/contact_wrench``: for analysis and tests, no controller reads it)."""
+        self._evaluate()
+        r = self._tip_r if self._tip_r is not None else self._data.oMf[self._tip].translation
+        return ContactWrench(self._contact[:3].copy(), np.zeros(3), np.array(r, dtype=float))
+
+    def sensor_wrench(self) -> np.ndarray:
+        """The wrist sensor's reading now without noise (6: force N, torque N m, in
+        ``wrench_frame``; bias included; module docstring); the ideal sensor: the contact
+        force and zero torque."""
+        if self._sensed:
+            return self._wrench.copy()
+        self._evaluate()
+        if self._sensor is None:
+            self._wrench[:3], self._wrench[3:] = self._contact[:3], 0.0
+        else:
+            # q'' at this state (held command, contact), then the sensor frame's motion
+            model, data, frame, local = self.model, self._sensor_data, self._sensor, pin.LOCAL
+            a = pin.aba(model, data, self._qp, self._vs, self._total, pin.Convention.WORLD)
+            pin.forwardKinematics(model, data, self._qp, self._vs, a)
+            R = pin.updateFramePlacement(model, data, frame).rotation
+            contact3d.wrist_wrench_into(R, pin.getFrameVelocity(model, data, frame, local).vector,
+                                        pin.getFrameAcceleration(model, data, frame, local).vector,
+                                        self._contact, self._packed_tool, self._wrench)
+        self._sensed = True
+        return self._wrench.copy()
+
     @property
     def applied_effort(self) -> np.ndarray:
         """The joint torques held now (the last accepted command)."""
         return self._tau.copy()
 
     def measurement(self) -> Measurement:
+        """Joint state (noise on the chain's joints) and the wrench in ``wrench_frame``: the
+        ideal sensor's contact force (``force_noise_std``), or the wrist sensor's reading
+        (:meth:`sensor_wrench`, ``ft_noise_std``)."""
         n, x, locked = self._n, self._x, self._locked_q.size
         q, v = x[:n].copy(), x[n:].copy()
-        force = self.contact_force()
+        ideal = self._sensor is None
+        if ideal:
+            force, torque = self.contact_force(), np.zeros(3)
+        else:
+            wrench = self.sensor_wrench()
+            if self._ft_noisy:
+                wrench += self._ft_std * self._rng.standard_normal(6)
+            force, torque = wrench[:3], wrench[3:]
         if self._noisy:
             q_std, v_std, f_std = self._noise
             q += q_std * self._rng.standard_normal(n)
             v += v_std * self._rng.standard_normal(n)
-            force += f_std * self._rng.standard_normal(3)
+            if ideal:
+                force += f_std * self._rng.standard_normal(3)
         zeros = np.zeros(locked)
         return Measurement(self._t, np.concatenate([q, self._locked_q]),
-                           np.concatenate([v, zeros]), np.concatenate([self._tau, zeros]), force)
+                           np.concatenate([v, zeros]), np.concatenate([self._tau, zeros]), force,
+                           torque)
 
     # -- limits and brakes ---------------------------------------------------------------------
     def joint_limits(self) -> JointLimits:
