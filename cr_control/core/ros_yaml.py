@@ -34,3 +34,24 @@ def describe_error(exc: yaml.YAMLError) -> str:
     mark = getattr(exc, "problem_mark", None)
     where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
     return f"{problem}{where}"
+
+
+#: What a ROS params file holds, for messages.
+PARAMS_FILE_FORM = "NODE: {ros__parameters: {NAME: VALUE, ...}}"
+
+
+def is_empty_params(data: Any) -> bool:
+    """True for a loaded params file that names no node at all: an empty file, only
+    comments, ``{}``, ``null`` or ``~``. rcl takes such a file without a word, so a
+    mistyped or truncated file would pass unnoticed; we refuse it."""
+    return data is None or data == {}
+
+
+def empty_params_file(path: str) -> bool:
+    """True if the file at ``path`` reads as an empty params file (:func:`is_empty_params`);
+    False if it holds something, or cannot be read or parsed (its reader says why)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return is_empty_params(load(f.read()))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return False

@@ -7,6 +7,17 @@ to ``max_dt`` and a gap in stamps restarts the stepping instead of being integra
 one step; a non-finite internal state is restored; the status reports the command
 actually sent.
 
+A law that fails for good does not keep a command in force (issue 25): after
+``max_bad_cycles`` cycles in a row whose output was held because of the law (a
+non-finite command or internal state) or had a command element at its limit on the same
+side (+-max_effort, or the URDF effort the task-space kernels clip to: ``command_limits``),
+:attr:`Controller.commanding` turns False and the node publishes no command, so the
+plant's watchdog brakes; it turns True again with the first output that is finite and
+inside its limits. Commands alternating between the two limits (the chatter of
+fjr_robust_adaptive's measured q_m'') restart the count; cycles held because of the
+input (a NaN state, a stamp gap) are not the law's doing and leave it alone. The count is
+kept by :func:`accept_cycle`, per command element.
+
 It is the 1 kHz hot path, and in a node every state arrives after an idle spell, when
 every distinct piece of code runs several times slower than back to back (caches gone
 cold on this kind of virtual machine). So a cycle is three compiled calls and no numpy
@@ -14,7 +25,7 @@ call from Python: :func:`admit_state` (the input checks), the scheme's kernel wr
 into one of two preallocated output vectors (:class:`KernelOutput`), and
 :func:`accept_cycle` (internal-state backup or restore, command checks and clipping).
 Measured after a 0.9 ms sleep: 118-154 us per step with the checks, allocation, views
-and backup done in Python and numpy, 48-66 us this way (README, "The hot path").
+and backup done in Python and numpy, 48-66 us this way (docs/benchmark.md, "The hot path").
 """
 
 from __future__ import annotations
@@ -31,7 +42,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.linalg import all_finite
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 
 #: Parameters of every controller node.
@@ -40,29 +51,49 @@ COMMON_PARAMETERS = [
           "string_list", read_only=True),
     Param("max_effort", 100.0, "Commands are clipped to +-max_effort (N m, or m for position "
           "commands); the thesis schemes stay inside the default, except fjr_robust_adaptive "
-          "with the measured q_m'' (its torque then sits at the clip).", "positive"),
+          "with the measured q_m'' (its torque then sits at the clip).", "positive",
+          bound=Bound.EFFORT),
     Param("forward_command_topic", "",
           "If set, also publish commands as Float64MultiArray here (ros2_control "
           "forward_command_controller, e.g. /effort_controller/commands).", "string",
           read_only=True),
+    # 1000: no joint turns 160 times or moves 1 km, nor at 160 turns/s; the defaults are
+    # already far beyond any arm.
     Param("max_joint_position", 100.0, "States whose joint positions have a Euclidean norm "
-          "above this (rad or m) are absurd: held like NaN.", "positive"),
+          "above this (rad or m) are absurd: held like NaN.", "positive", bound=1000.0),
     Param("max_joint_velocity", 100.0, "States whose joint velocities have a Euclidean norm "
-          "above this (rad/s or m/s) are absurd: held like NaN.", "positive"),
+          "above this (rad/s or m/s) are absurd: held like NaN.", "positive", bound=1000.0),
+    # 1 s: a law integrated over a longer step than that is no longer a 1 kHz control law.
     Param("max_dt", 0.005, "Longest integration step (s) of the control law's internal "
-          "states; longer intervals between states are integrated as this.", "positive"),
+          "states; longer intervals between states are integrated as this.", "positive",
+          bound=1.0),
+    # 10 s: a gap beyond it is a restart whatever this says.
     Param("max_stamp_gap", 0.05, "A state stamped more than this (s) after the previous one, "
           "or before it, is held and the stepping restarts from it (a gap is never "
-          "integrated as one step).", "positive"),
+          "integrated as one step).", "positive", bound=10.0),
     Param("diagnostics_every", 1, "Publish ~/reference and ~/status every this many cycles "
           "(integer >= 1). 1 = every cycle, as the thesis figures and the lockstep "
           "determinism tests need; costs one in/out message pair per cycle (out_time_us).",
-          "integer"),
+          "integer", bound=10000),    # every 10 s at 1 kHz
     Param("lockstep", False, "The plant steps on this node's commands (cr_session --mode "
           "lockstep sets it): every 250 cycles the node waits until every reader of its "
           "topics (a recorder) acknowledged them, so a recording loses nothing. Leave it off "
           "against a plant in real time: such a wait can last a heartbeat (10 ms).", "bool",
           read_only=True),
+    # Issue 25. 50: the thesis runs have no such cycle but fjr_robust_adaptive with the
+    # measured q_m'', whose torque chatters between the two clips (at most 10-24 cycles in a
+    # row at one clip for K_s = 10-100 I at 1 kHz); 10 000 = 10 s at 1 kHz.
+    Param("max_bad_cycles", 50, "Commands stop after this many cycles in a row in which the "
+          "law's output was not usable (non-finite command or internal state: held) or a "
+          "command sat at its limit (+-max_effort or the URDF effort) on the same side; the "
+          "plant's watchdog then brakes. Commanding resumes with the first output that is "
+          "finite and inside its limits (integer >= 1; see docs/safety.md).", "integer",
+          bound=10000),
+    # 1e4 N: the range of the largest 6-axis force/torque sensors.
+    Param("max_sensor_force", 1000.0, "A measured contact force above this (N, Euclidean "
+          "norm), or a non-finite one, is a sensor fault: the last sane reading is used "
+          "instead. 1000 N is ~10x what these arms can press (the thesis arms' 20 N m joints, "
+          "the Panda's 87 N m) and the weight of 100 kg.", "positive", bound=1e4),
 ]
 
 #: Faults are logged at most this often (s); the count in between is reported.
@@ -102,27 +133,52 @@ def admit_state(n, max_q, max_v, stamp, q, v, force):
 
 
 @njit(cache=True, error_model="numpy")
-def accept_cycle(n, max_effort, internal, good, command, status, command_slots):
-    """Judge a computed cycle; returns one of ACCEPTED, INTERNAL_RESTORED,
-    WRONG_COMMAND_SIZE, COMMAND_NOT_FINITE.
+def accept_cycle(n, max_effort, limits, internal, good, command, status, command_slots, guard):
+    """Judge a computed cycle; returns (verdict, run): the verdict one of ACCEPTED,
+    INTERNAL_RESTORED, WRONG_COMMAND_SIZE, COMMAND_NOT_FINITE, and run the number of cycles
+    in a row, this one included, in which the law failed (0 after a good cycle).
 
     A non-finite ``internal`` is restored in place from ``good`` (its last finite value);
     a finite one is copied into ``good``. A command of ``n`` finite values is clipped to
-    +-max_effort, and the clipped values are written to ``status[command_slots]``."""
+    +-max_effort, and the clipped values are written to ``status[command_slots]``.
+
+    ``guard`` (2 n values, zero at the start) keeps the run per command element: its count
+    ``guard[j]`` and the side ``guard[n + j]`` (+-1, 0 for none) of its limit, min(max_effort,
+    limits[j]). A held cycle (any verdict but ACCEPTED: the last command stays in force)
+    counts for every element; an accepted one counts for an element at its limit, from 1
+    again if it was at the other limit before, and clears an element inside its limits."""
+    verdict = ACCEPTED
     if not all_finite(internal):
         internal[:] = good
-        return INTERNAL_RESTORED
-    good[:] = internal
-    if command.shape[0] != n:
-        return WRONG_COMMAND_SIZE
-    if not all_finite(command):
-        return COMMAND_NOT_FINITE
+        verdict = INTERNAL_RESTORED
+    else:
+        good[:] = internal
+        if command.shape[0] != n:
+            verdict = WRONG_COMMAND_SIZE
+        elif not all_finite(command):
+            verdict = COMMAND_NOT_FINITE
+    run = 0.0
     for j in range(n):
-        if command[j] > max_effort or command[j] < -max_effort:
-            command[j] = min(max(command[j], -max_effort), max_effort)
-            if command_slots.shape[0] == n:
-                status[command_slots[j]] = command[j]
-    return ACCEPTED
+        if verdict != ACCEPTED:
+            guard[j] += 1.0
+        else:
+            c = command[j]
+            if c > max_effort or c < -max_effort:
+                c = min(max(c, -max_effort), max_effort)
+                command[j] = c
+                if command_slots.shape[0] == n:
+                    status[command_slots[j]] = c
+            limit = min(max_effort, limits[j])
+            side = 1.0 if c >= limit else (-1.0 if c <= -limit else 0.0)
+            if side == 0.0:
+                guard[j] = 0.0
+            elif guard[j] > 0.0 and guard[n + j] != -side:
+                guard[j] += 1.0
+            else:
+                guard[j] = 1.0
+            guard[n + j] = side
+        run = max(run, guard[j])
+    return verdict, int(run)
 
 
 #: Reference values of the 2-D schemes (topics.REFERENCE_FIELDS without the stamp).
@@ -220,11 +276,26 @@ class Controller(ABC):
         self._output: KernelOutput | None = None
         self._last: ControlOutput | None = None
         self._t0: float | None = None
-        self._t_prev: float | None = None
+        self._t_prev: float | None = None     # stamp of the last state the law was given
+        self._t_step: float | None = None     # ... up to which the internal state is integrated
         self.held_cycles = 0
         self.restored_cycles = 0
-        #: Where fault warnings go (the controller node routes them to its ROS logger).
+        #: Each command element's own limit besides max_effort, in command order (a
+        #: task-space scheme's URDF efforts, which its kernel clips to); inf where none.
+        self.command_limits = np.full(self.n_joints, np.inf)
+        #: False while the law's output has failed for more than max_bad_cycles cycles in a
+        #: row (module docstring): the node then publishes no command.
+        self.commanding = True
+        #: Cycles in a row in which the law failed (held because of it, or at a limit).
+        self.bad_run = 0
+        #: How often commanding stopped.
+        self.stops = 0
+        self._guard = np.zeros(2 * self.n_joints)
+        #: Where fault warnings go (the controller node routes them to its ROS logger), and
+        #: the one-off lines of a stop (error) and of resuming (info).
         self.log_warning: Callable[[str], None] = _log.warning
+        self.log_error: Callable[[str], None] = _log.error
+        self.log_info: Callable[[str], None] = _log.info
         self._warned_at = -math.inf
         self._unwarned = 0
 
@@ -294,8 +365,9 @@ class Controller(ABC):
         out = self.compute(0.0, 1e-3, q, v, force)
         self.plant_sensors[:] = saved_sensors
         scratch = (_NO_INTERNAL if saved is None else saved).copy()
-        accept_cycle(self.n_joints, values["max_effort"], scratch, scratch.copy(), out.command,
-                     out.status, self._command_slots)
+        accept_cycle(self.n_joints, values["max_effort"], self.command_limits, scratch,
+                     scratch.copy(), out.command, out.status, self._command_slots,
+                     self._guard.copy())
         if saved is not None:
             np.copyto(self.internal, saved)
 
@@ -305,11 +377,19 @@ class Controller(ABC):
         Held (the last finite command stays in force, zero before the first, and
         ``held`` is set in the status) when: an input has the wrong size or is not
         finite; |q| > max_joint_position or |q'| > max_joint_velocity (Euclidean
-        norms); the stamp goes back or jumps by more than max_stamp_gap (the stepping
-        then restarts from that stamp); the command or ``self.internal`` comes out
-        non-finite (``internal`` is restored). The law integrates at most max_dt per
-        cycle. Commands beyond +-max_effort are clipped and the status reports the
-        clipped command.
+        norms); the stamp goes back or jumps by more than max_stamp_gap from the previous
+        state the law was given (the stepping then restarts from that stamp); the command
+        or ``self.internal`` comes out non-finite (``internal`` is restored). The law
+        integrates the time since the last cycle whose internal state it kept, at most
+        max_dt. Commands beyond +-max_effort are clipped and the status reports the clipped
+        command.
+
+        :attr:`commanding` turns False (one error line) once the law has failed for more
+        than max_bad_cycles cycles in a row (held because of the law, or a command element
+        at its limit on the same side: :func:`accept_cycle`), and True again (one info
+        line) with the first cycle whose output is finite and inside its limits. The
+        output is the same either way (the offline loop, which has no watchdog, applies
+        it); the node publishes no command while it is False.
         """
         start = time.perf_counter()
         values = self.values
@@ -319,14 +399,16 @@ class Controller(ABC):
             reason = self._refused_state(stamp, q, v, force)
         else:
             if self._t0 is None:
-                self._t0 = self._t_prev = stamp
+                self._t0 = self._t_prev = self._t_step = stamp
             gap = stamp - self._t_prev
             if 0.0 <= gap <= values["max_stamp_gap"]:
-                out, reason = self._compute(stamp, min(gap, values["max_dt"]), q, v, force)
+                self._t_prev = stamp
+                out, reason = self._compute(stamp, min(stamp - self._t_step, values["max_dt"]),
+                                            q, v, force)
             else:
                 reason = (f"stamp {'went back' if gap < 0.0 else 'jumped'} by {gap:.6g} s "
                           f"(max_stamp_gap {values['max_stamp_gap']:g} s): stepping restarts")
-                self._t_prev = stamp
+                self._t_prev = self._t_step = stamp
         if out is None:
             self.held_cycles += 1
             self._warn(reason)
@@ -352,19 +434,56 @@ class Controller(ABC):
         if internal is not self._internal_of:
             self._internal_good, self._internal_of = internal.copy(), internal  # initial value
         out = self.compute(stamp - self._t0, dt, q, v, force)
-        verdict = accept_cycle(self.n_joints, self.values["max_effort"], internal,
-                               self._internal_good, out.command, out.status, self._command_slots)
+        values = self.values
+        verdict, run = accept_cycle(self.n_joints, values["max_effort"], self.command_limits,
+                                    internal, self._internal_good, out.command, out.status,
+                                    self._command_slots, self._guard)
+        self.bad_run = run
+        if verdict != INTERNAL_RESTORED:
+            self._t_step = stamp        # the internal state integrated up to here is kept
         if verdict == ACCEPTED:
             if self._output is not None:
                 self._output.keep()
-            self._t_prev = stamp
-            return out, ""
-        if verdict == INTERNAL_RESTORED:
+            reason = ""
+        elif verdict == INTERNAL_RESTORED:
             self.restored_cycles += 1
-            return None, "internal state not finite: restored to its last finite value"
-        if verdict == WRONG_COMMAND_SIZE:
-            return None, f"command of the wrong size {out.command.shape}"
-        return None, f"non-finite command {out.command}"
+            reason = "internal state not finite: restored to its last finite value"
+        elif verdict == WRONG_COMMAND_SIZE:
+            reason = f"command of the wrong size {out.command.shape}"
+        else:
+            reason = f"non-finite command {out.command}"
+        if run > values["max_bad_cycles"]:
+            if self.commanding:
+                self._stop(reason or self._at_limit())
+        elif run == 0 and not self.commanding:
+            self._resume()
+        return (out, "") if verdict == ACCEPTED else (None, reason)
+
+    def _at_limit(self) -> str:
+        """Which command element sits at its limit longest, and where (for the stop line)."""
+        n = self.n_joints
+        j = int(np.argmax(self._guard[:n]))
+        names = self.values["joint_names"]
+        limit = min(self.values["max_effort"], float(self.command_limits[j]))
+        return (f"{names[j]}'s command at {self._guard[n + j] * limit:+.6g} for "
+                f"{int(self._guard[j])} cycles (its limit: max_effort "
+                f"{self.values['max_effort']:g}"
+                + (f", URDF effort {self.command_limits[j]:g})" if math.isfinite(
+                    self.command_limits[j]) else ")"))
+
+    def _stop(self, reason: str) -> None:
+        self.commanding = False
+        self.stops += 1
+        self.log_error(
+            f"{self.scheme}: more than {self.values['max_bad_cycles']} cycles in a row "
+            f"(max_bad_cycles) with a non-finite or saturated output ({reason}): commands "
+            "stopped; the plant's watchdog will brake. Commanding resumes once the law's "
+            "output is finite and inside its limits")
+
+    def _resume(self) -> None:
+        self.commanding = True
+        self.log_info(f"{self.scheme}: the law's output is finite and inside its limits again: "
+                      "commanding resumes (a plant in safe stop stays there until resumed)")
 
     def _warn(self, reason: str) -> None:
         """Log why a cycle was held, at most every WARN_EVERY_S with a count in between."""

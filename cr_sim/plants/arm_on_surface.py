@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.models.arm_model import LinkParameters, NotTwoLinkArmError, TwoLinkArm, two_link_chain
 from cr_control.models.planar_chain import (
     GEOMETRY_ROWS,
@@ -75,15 +75,15 @@ def arm_parameters(length: float, com: float) -> list[Param]:
     return [
         Param("link_length", [length, length], "Link lengths (m): joint 2 and the tip along the "
               "x axis of links 1 and 2 (override the URDF's).", "positive_vector", 2,
-              read_only=True),
+              read_only=True, bound=Bound.LENGTH),
         Param("link_com", [com, com], "Centre-of-mass distance from each joint along its link's "
-              "x axis (m) (overrides the URDF's).", "positive_vector", 2, read_only=True),
+              "x axis (m) (overrides the URDF's).", "positive_vector", 2, read_only=True, bound=Bound.LENGTH),
         Param("link_mass", [0.1, 0.1], "Link masses (kg) (override the URDF's).",
-              "positive_vector", 2, read_only=True),
+              "positive_vector", 2, read_only=True, bound=Bound.MASS),
         Param("link_inertia", [0.3, 0.3], "Link inertias about the centre of mass (kg m^2) "
-              "(override the URDF's).", "positive_vector", 2, read_only=True),
+              "(override the URDF's).", "positive_vector", 2, read_only=True, bound=Bound.INERTIA),
         Param("gravity", 9.8, "Gravitational acceleration along -y (m/s^2).", "nonnegative",
-              read_only=True),
+              read_only=True, bound=Bound.GRAVITY),
     ]
 
 
@@ -115,25 +115,26 @@ def disturbance_parameters(amplitude: list[float], frequency: float, start: floa
     return [
         Param("disturbance_amplitude", amplitude,
               f"External disturbance force f_dist on the end effector (N) ({what}); 0 = none.",
-              "vector", 2, read_only=True),
+              "vector", 2, read_only=True, bound=Bound.FORCE),
         Param("disturbance_frequency", frequency,
               "f_dist = amplitude*sin(w (t - start)) with this w (rad/s); 0 = constant force.",
-              "nonnegative", read_only=True),
+              "nonnegative", read_only=True, bound=Bound.BANDWIDTH),
         Param("disturbance_start", start, "Time the disturbance starts (s).", "nonnegative",
-              read_only=True),
+              read_only=True, bound=Bound.TIME),
         Param("disturbance_duration", duration, "How long it lasts (s); 0 = to the end.",
-              "nonnegative", read_only=True),
+              "nonnegative", read_only=True, bound=Bound.TIME),
     ]
 
 
 NOISE_PARAMETERS = [
     Param("position_noise_std", 0.0, "Joint position measurement noise, std (rad).",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.POSITION_NOISE),
     Param("velocity_noise_std", 0.0, "Joint velocity measurement noise, std (rad/s).",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.VELOCITY_NOISE),
     Param("force_noise_std", 0.0, "Force measurement noise, std (N).", "nonnegative",
-          read_only=True),
-    Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True),
+          read_only=True, bound=Bound.FORCE),
+    Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True,
+          bound=Bound.SEED),
 ]
 
 

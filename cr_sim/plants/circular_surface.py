@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_sim.models.surfaces import circle
 from cr_sim.plants.arm_on_surface import (
     NOISE_PARAMETERS,
@@ -55,31 +55,32 @@ PARAMETERS = [
     *robot_parameters("two_link_arm_ch5.urdf", "the 2-link arm of chapter 5 (0.6 m links)"),
     *arm_parameters(length=0.6, com=0.3),
     Param("surface_centre", [0.8, -0.4], "Centre c of the circular surface |r - c| = R (m) "
-          "(section 5.3: (x - 0.8)^2 + (y + 0.4)^2 = 0.09).", "vector", 2, read_only=True),
+          "(section 5.3: (x - 0.8)^2 + (y + 0.4)^2 = 0.09).", "vector", 2, read_only=True,
+          bound=Bound.LENGTH),
     Param("surface_radius", 0.3, "Radius R of the circular surface (m) (section 5.3: 0.3).",
-          "positive", read_only=True),
+          "positive", read_only=True, bound=Bound.LENGTH),
     Param("stiffness", 2000.0, "Environment stiffness K_e along the normal (N/m); the thesis "
           "gives none: a compliant surface yielding 5 mm at the desired 10 N.", "positive",
-          read_only=True),
+          read_only=True, bound=Bound.CONTACT_STIFFNESS),
     Param("damping", 10.0, "Environment damping D_e along the normal (N s/m); only pushes "
-          "(unilateral).", "nonnegative", read_only=True),
+          "(unilateral).", "nonnegative", read_only=True, bound=Bound.DAMPING),
     Param("initial_position", [0.8, -0.1],
           "End-effector position at t = 0, at rest (m); default r_d(0), on the surface at "
-          "zero force.", "vector", 2, read_only=True),
+          "zero force.", "vector", 2, read_only=True, bound=Bound.LENGTH),
     Param("elbow_sign", -1.0, "Inverse-kinematics branch: sign of sin(theta2) at t = 0 (-1: "
-          "elbow up, clear of the disk).", read_only=True),
+          "elbow up, clear of the disk).", read_only=True, bound=Bound.SIGN),
     Param("disturbance_magnitude", 2.0, "|f~| of the disturbance force on the end effector "
-          "(N) (5.3: 2 N); 0 = none.", "nonnegative", read_only=True),
+          "(N) (5.3: 2 N); 0 = none.", "nonnegative", read_only=True, bound=Bound.FORCE),
     Param("disturbance_direction", [0.0, 0.0], "Direction of f~ (normalised here); [0, 0] = "
           "the outward surface normal at the end effector when f~ begins (pulls it off).",
-          "vector", 2, read_only=True),
+          "vector", 2, read_only=True, bound=Bound.SCALE),
     Param("disturbance_start", 2.0, "Time f~ begins (s) (5.3: 2 s).", "nonnegative",
-          read_only=True),
+          read_only=True, bound=Bound.TIME),
     Param("disturbance_duration", 0.06, "How long f~ lasts (s) (5.3: 0.06 s).", "nonnegative",
-          read_only=True),
+          read_only=True, bound=Bound.TIME),
     *NOISE_PARAMETERS,
     Param("substeps", 1, "RK4 substeps per control period (contact mode ~41 rad/s: 1 is "
-          "plenty at 1 kHz).", "integer", read_only=True),
+          "plenty at 1 kHz).", "integer", read_only=True, bound=Bound.SUBSTEPS),
     max_contact_force_parameter(50.0, "5 x the task's force f_dm = 10 N (5.3; the thesis "
                                 "runs peak at 15.2 N on the first impact)."),
 ]

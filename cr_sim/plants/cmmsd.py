@@ -27,25 +27,28 @@ from __future__ import annotations
 
 import numpy as np
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_sim.plants.base import JointLimits, Measurement, max_contact_force_parameter
 from cr_sim.plants.lti import LTIPlant
 
 NAME = "cmmsd"
 
 PARAMETERS = [
-    Param("masses", 2, "Number of masses n.", "integer", read_only=True),
+    # 20: each mass adds two steps to the backstepping design (appendix C) and two orders to
+    # the model polynomial, whose coefficients grow combinatorially.
+    Param("masses", 2, "Number of masses n.", "integer", read_only=True, bound=20),
     Param("mass", [1.0], "Masses m_1..m_n (kg); one value = every mass.", "positive_vector",
-          read_only=True),
+          read_only=True, bound=Bound.MASS),
     Param("damping", [0.5], "Viscous damping b_1..b_n of each mass to the ground (N s/m); one "
-          "value = every mass.", "nonnegative_vector", read_only=True),
+          "value = every mass.", "nonnegative_vector", read_only=True, bound=Bound.DAMPING),
     Param("stiffness", [4.0], "Spring constants k_1..k_{n-1} between neighbours (N/m); one "
-          "value = every spring.", "positive_vector", read_only=True),
+          "value = every spring.", "positive_vector", read_only=True, bound=Bound.STIFFNESS),
     Param("initial_position", [0.1], "Displacements q_1(0)..q_n(0) from equilibrium, at rest "
-          "(m); one value = every mass.", "vector", read_only=True),
+          "(m); one value = every mass.", "vector", read_only=True, bound=Bound.LENGTH),
     Param("position_noise_std", 0.0, "Position measurement noise, std (m).", "nonnegative",
-          read_only=True),
-    Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True),
+          read_only=True, bound=Bound.POSITION_NOISE),
+    Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True,
+          bound=Bound.SEED),
     max_contact_force_parameter(10.0, "the chain has no contact and no task force (appendix "
                                 "C): it acts on the measured wrench, always 0, so it never "
                                 "trips; 10 N is a placeholder."),

@@ -15,7 +15,7 @@ parameters (its joint names; ``link_*`` override its geometry and inertia).
 
 from __future__ import annotations
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_sim.models.surfaces import plane
 from cr_sim.plants.arm_on_surface import (
     NOISE_PARAMETERS,
@@ -33,22 +33,22 @@ PARAMETERS = [
     *arm_parameters(length=0.3, com=0.15),
     Param("surface_normal", [1.0, -1.0],
           "n of the plane n.r + offset = 0; points out of the environment (3.92: [1, -1]).",
-          "vector", 2, read_only=True),
+          "vector", 2, read_only=True, bound=Bound.SCALE),
     Param("surface_offset", 0.25, "offset of the plane n.r + offset = 0 (3.92: 0.25).",
-          read_only=True),
+          read_only=True, bound=Bound.LENGTH),
     Param("stiffness", 150.0, "Environment stiffness K_e along the normal (N/m) (3.5).",
-          "positive", read_only=True),
+          "positive", read_only=True, bound=Bound.CONTACT_STIFFNESS),
     Param("damping", 0.0, "Environment damping along the normal (N s/m); thesis: none.",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.DAMPING),
     Param("initial_position", [-0.05, 0.2],
           "End-effector position at t = 0, at rest (m); default touches the plane at zero force.",
-          "vector", 2, read_only=True),
+          "vector", 2, read_only=True, bound=Bound.LENGTH),
     Param("elbow_sign", -1.0, "Inverse-kinematics branch: sign of sin(theta2) at t = 0.",
-          read_only=True),
+          read_only=True, bound=Bound.SIGN),
     *disturbance_parameters([0.0, 0.0], 0.0, 0.0, 0.0, "3.35"),
     *NOISE_PARAMETERS,
     Param("substeps", 1, "RK4 substeps per control period (the contact is not stiff: 1 is "
-          "accurate to ~1e-9 m at 1 kHz).", "integer", read_only=True),
+          "accurate to ~1e-9 m at 1 kHz).", "integer", read_only=True, bound=Bound.SUBSTEPS),
     max_contact_force_parameter(50.0, "~5 x the task's force: the ch. 3 contact settles at "
                                 "~10.6 N (its thesis runs peak at 11.2 N)."),
 ]

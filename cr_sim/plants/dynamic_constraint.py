@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 from cr_sim.plants.base import JointLimits, Measurement, max_contact_force_parameter
 from cr_sim.plants.lti import LTIPlant
 
@@ -56,33 +56,37 @@ NAME = "dynamic_constraint"
 CASE_STIFFNESS = {1: 20.0, 2: 50.0, 3: 80.0}
 
 PARAMETERS = [
-    Param("end_effector_mass", 20.0, "End-effector mass m of (4.5) (kg).", "positive", read_only=True),
+    Param("end_effector_mass", 20.0, "End-effector mass m of (4.5) (kg).", "positive", read_only=True,
+          bound=Bound.MASS),
     Param("end_effector_damping", 0.5, "End-effector damping c of (4.5) (N s/m).", "nonnegative",
-          read_only=True),
+          read_only=True, bound=Bound.DAMPING),
     Param("end_effector_stiffness", 10.0, "End-effector (position loop) stiffness k of (4.5) (N/m).",
-          "positive", read_only=True),
+          "positive", read_only=True, bound=Bound.STIFFNESS),
     Param("k_o", 20.0, "Outer-layer stiffness k_o (N/m); cases 1/2/3: 20/50/80.", "positive",
-          read_only=True),
+          read_only=True, bound=Bound.STIFFNESS),
     Param("k_s", 20.0, "Outer-layer stiffness k_s (N/m); cases 1/2/3: 20/50/80.", "positive",
-          read_only=True),
-    Param("b_s", 1.0, "Outer-layer damping b_s (N s/m).", "positive", read_only=True),
-    Param("k_c", 10.0, "Compliant-layer stiffness k_c (N/m).", "positive", read_only=True),
-    Param("b_c", 1.0, "Compliant-layer damping b_c (N s/m).", "nonnegative", read_only=True),
-    Param("m_c", 50.0, "Compliant-layer mass m_c (kg).", "positive", read_only=True),
+          read_only=True, bound=Bound.STIFFNESS),
+    Param("b_s", 1.0, "Outer-layer damping b_s (N s/m).", "positive", read_only=True, bound=Bound.DAMPING),
+    Param("k_c", 10.0, "Compliant-layer stiffness k_c (N/m).", "positive", read_only=True,
+          bound=Bound.STIFFNESS),
+    Param("b_c", 1.0, "Compliant-layer damping b_c (N s/m).", "nonnegative", read_only=True,
+          bound=Bound.DAMPING),
+    Param("m_c", 50.0, "Compliant-layer mass m_c (kg).", "positive", read_only=True, bound=Bound.MASS),
     Param("initial_force", 1.5, "Force at t = 0 (N): the plant starts at rest in the "
-          "equilibrium with this force (thesis: 1.5 N).", "nonnegative", read_only=True),
+          "equilibrium with this force (thesis: 1.5 N).", "nonnegative", read_only=True, bound=Bound.FORCE),
     Param("force_noise_std", 0.0, "Force measurement noise, std (N).", "nonnegative",
-          read_only=True),
+          read_only=True, bound=Bound.FORCE),
     Param("position_noise_std", 0.0, "Position (delta) measurement noise, std (m).",
-          "nonnegative", read_only=True),
-    Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.POSITION_NOISE),
+    Param("noise_seed", 0, "Seed of the measurement noise.", "integer", read_only=True,
+          bound=Bound.SEED),
     max_contact_force_parameter(5.0, "5 x the task's force f_d = 1 N (section 4.3; "
                                 "config/backstepping_force.yaml, mrac_force.yaml), 3.3 x the "
                                 "initial 1.5 N, the most the backstepping cases 1-3 reach."),
     Param("retract_speed", 0.5, "Safe stop: speed (m/s) at which the command delta_c retracts "
           "to the contact-free position (the position interface has no velocity limit of its "
           "own); ~1.5 x the fastest end-effector motion of the thesis runs (0.33 m/s).",
-          "positive", read_only=True),
+          "positive", read_only=True, bound=Bound.SPEED),
 ]
 
 

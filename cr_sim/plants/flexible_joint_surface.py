@@ -70,7 +70,7 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_sim.models.constrained_dynamics import (
     mechanism_dynamics_into,
     mechanism_work_size,
@@ -116,32 +116,32 @@ PARAMETERS = [
     *arm_parameters(length=0.3, com=0.15),
     Param("joint_stiffness", [10.0, 10.0],
           "Joint stiffness K_s per joint (N m/rad) (6.1-6.3; 6.3.1 case 1: 10, case 2: 50; "
-          "6.3.2: 300).", "positive_vector", 2, read_only=True),
+          "6.3.2: 300).", "positive_vector", 2, read_only=True, bound=Bound.STIFFNESS),
     Param("motor_inertia", [0.5, 0.5],
           "Motor inertia J_m per joint (kg m^2) (6.2; 6.3.1: 0.5, 6.3.2: 1.0).",
-          "positive_vector", 2, read_only=True),
+          "positive_vector", 2, read_only=True, bound=Bound.INERTIA),
     Param("surface_normal", [1.0, -1.0],
           "Normal n_raw of the rigid surface n_raw . p + offset = 0 (world; Phi uses it "
           "normalised, so lambda is the normal force in N and lambda > 0 presses).",
-          "vector", 2, read_only=True),
+          "vector", 2, read_only=True, bound=Bound.SCALE),
     Param("surface_offset", 0.35,
           "Offset c of the rigid surface n_raw . p + c = 0 (m * |n_raw|) (DESIGN.md: "
-          "x - y + 0.35 = 0, not the printed 0.25).", read_only=True),
+          "x - y + 0.35 = 0, not the printed 0.25).", read_only=True, bound=Bound.LENGTH),
     Param("baumgarte_alpha", 20.0, "Baumgarte damping alpha of the constraint error (1/s).",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.BANDWIDTH),
     Param("baumgarte_beta", 20.0, "Baumgarte stiffness beta of the constraint error (1/s).",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.BANDWIDTH),
     Param("initial_link_position", [2.85, -2.1202],
           "Link angles q_l at t = 0, at rest (rad): theta1 is kept, theta2 is solved onto the "
           "surface on the branch of its sign (DESIGN.md: [2.85, -2.1202]; the printed -1.77 "
-          "is off the surface).", "vector", 2, read_only=True),
+          "is off the surface).", "vector", 2, read_only=True, bound=Bound.JOINT),
     Param("initial_force", 2.0, "Contact force lambda at t = 0 (N): motors and held torque "
           "start at the static equilibrium G(q_l0) - J_Phi^T lambda_0 (6.3: 2 N).",
-          read_only=True),
+          read_only=True, bound=Bound.FORCE),
     Param("motor_effort_limit", 100.0, "Motor torque limit (N m) for the command limits (the "
-          "thesis gives none).", "positive", read_only=True),
+          "thesis gives none).", "positive", read_only=True, bound=Bound.EFFORT),
     *NOISE_PARAMETERS,
-    Param("substeps", 1, "RK4 substeps per control period.", "integer", read_only=True),
+    Param("substeps", 1, "RK4 substeps per control period.", "integer", read_only=True, bound=Bound.SUBSTEPS),
     max_contact_force_parameter(20.0, "|lambda| (either sign: the constraint is bilateral), "
                                 "10 x the task's lambda(0) = lambda_d = 2 N (6.3; the thesis "
                                 "runs peak at 3.3 N, robust adaptive, and 8.2 N, singular "

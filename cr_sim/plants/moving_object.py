@@ -48,7 +48,7 @@ from types import SimpleNamespace
 import numpy as np
 import pinocchio as pin
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.core.paths import config_file
 from cr_control.models.arm_model import two_link_inverse_kinematics
 from cr_sim.models.constrained_dynamics import (
@@ -82,30 +82,31 @@ PARAMETERS = [
     *robot_parameters("two_link_arm.urdf", "the 2-link arm of chapters 2, 3 and 6 (0.3 m links)"),
     *arm_parameters(length=0.3, com=0.15),
     Param("base_position", [0.2, 0.0], "Base of manipulator 1, (a, 0) (m) (2.4: a = 0.2).",
-          "vector", 2, read_only=True),
+          "vector", 2, read_only=True, bound=Bound.LENGTH),
     Param("object_height", 0.5, "Height b of the object frame (m) (2.93: b = 0.5).",
-          read_only=True),
+          read_only=True, bound=Bound.LENGTH),
     Param("object_mass", 0.2, "Mass M2 of manipulator 2 with the object (kg) (2.4).",
-          "positive", read_only=True),
+          "positive", read_only=True, bound=Bound.MASS),
     Param("constraint_normal", [1.0, -1.0],
           "Normal of the line on the object, object frame: Phi = n.r_co (2.94: x_co - y_co = 0; "
-          "normalised: n_c = (1, -1)/sqrt(2)).", "vector", 2, read_only=True),
+          "normalised: n_c = (1, -1)/sqrt(2)).", "vector", 2, read_only=True, bound=Bound.SCALE),
     Param("baumgarte_alpha", 20.0, "Baumgarte damping alpha of the constraint error (1/s).",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.BANDWIDTH),
     Param("baumgarte_beta", 20.0, "Baumgarte stiffness beta of the constraint error (1/s).",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.BANDWIDTH),
     Param("initial_object_position", X_O0,
           "Object position x_o at t = 0, at rest (m); default: x_o(0) of (2.107).",
-          read_only=True),
+          read_only=True, bound=Bound.LENGTH),
     Param("initial_contact_position", X_CO0,
           "End-effector position x_co on the object's line at t = 0 (m); default: x_co(0) of "
-          "(2.106).", read_only=True),
+          "(2.106).", read_only=True, bound=Bound.LENGTH),
     Param("elbow_sign", 1.0, "Inverse-kinematics branch at t = 0: sign of sin(theta2) "
-          "(DESIGN.md: s2 > 0).", read_only=True),
+          "(DESIGN.md: s2 > 0).", read_only=True, bound=Bound.SIGN),
     Param("initial_force", 2.0, "Contact force lambda at t = 0 (N): the initial held effort is "
-          "the static one G(q0) - J_Phi^T lambda_0 (default lambda_d = 2 N).", read_only=True),
+          "the static one G(q0) - J_Phi^T lambda_0 (default lambda_d = 2 N).", read_only=True,
+          bound=Bound.FORCE),
     *NOISE_PARAMETERS,
-    Param("substeps", 1, "RK4 substeps per control period.", "integer", read_only=True),
+    Param("substeps", 1, "RK4 substeps per control period.", "integer", read_only=True, bound=Bound.SUBSTEPS),
     max_contact_force_parameter(20.0, "|lambda| (either sign: the constraint is bilateral), "
                                 "10 x the task's lambda_d = 2 N (2.106): the thesis runs start "
                                 "with |lambda| up to ~10 N for a few ms under the node's command "

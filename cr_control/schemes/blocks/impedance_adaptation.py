@@ -28,7 +28,7 @@ from numba import njit
 
 from cr_control.core.linalg import matvec, tmatvec
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, matrix
+from cr_control.core.parameters import Bound, Param, matrix
 
 #: The m x m matrices of the packed gains, in order (c_hat_0 follows them).
 MATRICES = ("A_m", "B_m", "P1", "P2", "A_hat_0", "B_hat_0", "Q_a", "Q_b", "Q_c", "Q_a_star",
@@ -69,26 +69,26 @@ def impedance_parameters(m: int, A_m: float, B_m: float, P1: float, P2: float, A
     Q_a_star = Q if Q_a_star is None else Q_a_star
     return [
         Param("A_m", matrix(m, A_m), "Reference model damping A_m (3.8), positive definite.",
-              "spd", m),
+              "spd", m, bound=Bound.GAIN),
         Param("B_m", matrix(m, B_m), "Reference model stiffness B_m (3.8), positive definite.",
-              "spd", m),
-        Param("P1", matrix(m, P1), "P1 of varpi = P1^T xi + P2^T xi' (3.14).", "matrix", m),
-        Param("P2", matrix(m, P2), "P2 of varpi = P1^T xi + P2^T xi' (3.14).", "matrix", m),
+              "spd", m, bound=Bound.GAIN),
+        Param("P1", matrix(m, P1), "P1 of varpi = P1^T xi + P2^T xi' (3.14).", "matrix", m, bound=Bound.GAIN),
+        Param("P2", matrix(m, P2), "P2 of varpi = P1^T xi + P2^T xi' (3.14).", "matrix", m, bound=Bound.GAIN),
         Param("A_hat_0", matrix(m, A0), "Initial impedance estimate A_hat(0) (3.12).", "matrix",
-              m, read_only=True),
+              m, read_only=True, bound=Bound.GAIN),
         Param("B_hat_0", matrix(m, B0), "Initial impedance estimate B_hat(0) (3.13).", "matrix",
-              m, read_only=True),
+              m, read_only=True, bound=Bound.GAIN),
         Param("c_hat_0", c0, "Initial impedance estimate c_hat(0) (3.11).", "vector", m,
-              read_only=True),
-        Param("Q_a", matrix(m, Q), "Integral adaptation gain of A_hat (3.12).", "spd", m),
-        Param("Q_b", matrix(m, Q), "Integral adaptation gain of B_hat (3.13).", "spd", m),
-        Param("Q_c", matrix(m, Q), "Integral adaptation gain of c_hat (3.11).", "spd", m),
+              read_only=True, bound=Bound.GAIN),
+        Param("Q_a", matrix(m, Q), "Integral adaptation gain of A_hat (3.12).", "spd", m, bound=Bound.GAIN),
+        Param("Q_b", matrix(m, Q), "Integral adaptation gain of B_hat (3.13).", "spd", m, bound=Bound.GAIN),
+        Param("Q_c", matrix(m, Q), "Integral adaptation gain of c_hat (3.11).", "spd", m, bound=Bound.GAIN),
         Param("Q_a_star", matrix(m, Q_a_star), "Proportional adaptation gain Q_a* (3.12).",
-              "spd", m),
+              "spd", m, bound=Bound.GAIN),
         Param("Q_b_star", matrix(m, Q_bc_star), "Proportional adaptation gain Q_b* (3.13).",
-              "spd", m),
+              "spd", m, bound=Bound.GAIN),
         Param("Q_c_star", matrix(m, Q_bc_star), "Proportional adaptation gain Q_c* (3.11).",
-              "spd", m),
+              "spd", m, bound=Bound.GAIN),
     ]
 
 

@@ -44,7 +44,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 from cr_control.core.so3 import (
     quaternion_conjugate,
     quaternion_exp,
@@ -62,28 +62,30 @@ def reference_parameters(m: int, offset: list[float], amplitude: list[float],
     ``desired_force`` parameter if its default is None (a law with its own, 5.9)."""
     force = [] if desired_force is None else [
         Param("desired_force", desired_force, "Desired contact force f_d on the robot (N), base "
-              "frame (3.5); ~/target_wrench replaces it.", "vector", m)]
+              "frame (3.5); ~/target_wrench replaces it.", "vector", m, bound=Bound.FORCE)]
     return [
         Param("reference_offset", offset, "r_d = offset - amplitude*cos(w t + phase) per axis: "
-              f"offset (m) ({what}).", "vector", m),
-        Param("reference_amplitude", amplitude, "r_d: amplitude per axis (m).", "vector", m),
-        Param("reference_phase", phase, "r_d: phase per axis (rad).", "vector", m),
+              f"offset (m) ({what}).", "vector", m, bound=Bound.LENGTH),
+        Param("reference_amplitude", amplitude, "r_d: amplitude per axis (m).", "vector", m,
+              bound=Bound.LENGTH),
+        Param("reference_phase", phase, "r_d: phase per axis (rad).", "vector", m, bound=Bound.PHASE),
         Param("reference_frequency", frequency, "r_d: angular frequency w (rad/s).",
-              "nonnegative"),
+              "nonnegative", bound=Bound.MOTION_FREQUENCY),
         Param("reference_relative", relative, "r_d's offset is relative to the tip position at "
               "the first state (true) or absolute in the base frame (false).", "bool"),
         *force,
         Param("force_ramp_time", 0.0, "The desired force is ramped in over this time from the "
               "first state (s; smoothstep 3 s^2 - 2 s^3, no jump in f_d or its rate); 0 = at "
-              "once, as in the thesis.", "nonnegative"),
+              "once, as in the thesis.", "nonnegative", bound=Bound.TIME),
         Param("target_filter_frequency", 5.0, "Targets from ~/target_pose are followed through "
-              "a critically damped filter of this natural frequency (rad/s).", "positive"),
+              "a critically damped filter of this natural frequency (rad/s).", "positive",
+              bound=Bound.BANDWIDTH),
         Param("force_admittance_mass", 1.0, "Force admittance on the reference: mass m_a "
-              "(kg) of m_a delta'' + d_a delta' = n_f^T (f_d - f).", "positive"),
+              "(kg) of m_a delta'' + d_a delta' = n_f^T (f_d - f).", "positive", bound=Bound.MASS),
         Param("force_admittance_damping", 0.0, "Force admittance on the reference: damping "
-              "d_a (N s/m); 0 = off (the thesis's laws as printed).", "nonnegative"),
+              "d_a (N s/m); 0 = off (the thesis's laws as printed).", "nonnegative", bound=Bound.GAIN),
         Param("force_admittance_limit", 0.05, "Force admittance: largest shift |delta| of the "
-              "reference along the desired force (m).", "nonnegative"),
+              "reference along the desired force (m).", "nonnegative", bound=Bound.LENGTH),
     ]
 
 

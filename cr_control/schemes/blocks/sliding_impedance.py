@@ -50,7 +50,7 @@ from numba import njit
 
 from cr_control.core.linalg import matmul, matvec, spd_inverse
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, matrix
+from cr_control.core.parameters import Bound, Param, matrix
 
 
 def sliding_status_fields(axes: tuple[str, ...]) -> list[str]:
@@ -63,14 +63,15 @@ def sliding_parameters(m: int, D: float, K: float, K_s: float,
     """Parameters of the compensator (3.40), sliding surface (3.41) and K_s, Delta (3.48)."""
     return [
         Param("D", matrix(m, D), "Compensator matrix D of z' = D z + ... (3.40), negative "
-              "definite (sign convention: module docstring).", "nd", m),
+              "definite (sign convention: module docstring).", "nd", m, bound=Bound.GAIN),
         Param("K_1", matrix(m, K), "K_1 of s = e' + K_1 e + K_2 z (3.41), positive definite.",
-              "spd", m),
+              "spd", m, bound=Bound.GAIN),
         Param("K_2", matrix(m, K), "K_2 of s = e' + K_1 e + K_2 z (3.41), positive definite.",
-              "spd", m),
-        Param("K_s", matrix(m, K_s), "Sliding-surface feedback gain K_s (3.48, 3.76).", "spd", m),
+              "spd", m, bound=Bound.GAIN),
+        Param("K_s", matrix(m, K_s), "Sliding-surface feedback gain K_s (3.48, 3.76).", "spd", m,
+              bound=Bound.GAIN),
         Param("boundary_layer", boundary_layer, "Boundary layer Delta: sgn(s_i) is replaced by "
-              "s_i/Delta where |s_i| < Delta (remark 3.3.1) (m/s).", "positive"),
+              "s_i/Delta where |s_i| < Delta (remark 3.3.1) (m/s).", "positive", bound=Bound.SCALE),
     ]
 
 

@@ -68,7 +68,7 @@ from cr_control.core.linalg import (
     tmatvec,
 )
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.core.so3 import orientation_error
 from cr_control.models import spatial_chain as sc
 from cr_control.models.urdf import ChainModel, RobotModelError, load_chain
@@ -93,11 +93,12 @@ ROBOT_PARAMETERS = [
           "the law controls.", "string", read_only=True),
     Param("gravity", [0.0, -9.8, 0.0], "Gravity in the base frame (m/s^2); the thesis arm moves "
           "in the vertical x-y plane (9.8 along -y), a URDF arm usually has [0, 0, -9.81].",
-          "vector", 3, read_only=True),
+          "vector", 3, read_only=True, bound=Bound.GRAVITY),
     Param("model_mass_scale", 1.0, "The controller's model: every link mass times this (1 = the "
-          "URDF's; a deliberately wrong model shows robustness).", "positive", read_only=True),
+          "URDF's; a deliberately wrong model shows robustness).", "positive", read_only=True,
+          bound=Bound.SCALE),
     Param("model_inertia_scale", 1.0, "The controller's model: every rotational inertia about "
-          "the centre of mass times this.", "positive", read_only=True),
+          "the centre of mass times this.", "positive", read_only=True, bound=Bound.SCALE),
 ]
 
 #: Everything below the position task: orientation, posture, singularities, joint limits.
@@ -105,23 +106,25 @@ NULL_SPACE_PARAMETERS = [
     Param("orientation_stiffness", [30.0, 30.0, 30.0], "Cartesian orientation impedance: "
           "stiffness K_o per rotation axis of the base frame (N m/rad); acts on the axes the "
           "arm can turn beside its position task (none on the thesis's 2-link arm).",
-          "nonnegative_vector", 3),
+          "nonnegative_vector", 3, bound=Bound.GAIN),
     Param("orientation_damping", [3.0, 3.0, 3.0], "Cartesian orientation impedance: damping "
-          "D_o per rotation axis (N m s/rad).", "nonnegative_vector", 3),
+          "D_o per rotation axis (N m s/rad).", "nonnegative_vector", 3, bound=Bound.GAIN),
     Param("posture", [], "Joint posture the null space is pulled to (one value per chain "
           "joint, rad or m); empty = the configuration of the first state.", "vector",
-          read_only=True),
+          read_only=True, bound=Bound.JOINT),
     Param("posture_stiffness", 10.0, "Null-space posture stiffness K_n (N m/rad), acting only "
-          "where neither position nor orientation needs the joints.", "nonnegative"),
-    Param("posture_damping", 2.0, "Null-space posture damping D_n (N m s/rad).", "nonnegative"),
+          "where neither position nor orientation needs the joints.", "nonnegative", bound=Bound.GAIN),
+    Param("posture_damping", 2.0, "Null-space posture damping D_n (N m s/rad).", "nonnegative",
+          bound=Bound.GAIN),
     Param("singularity_mass", 100.0, "The generalised inverse is damped so that the task's "
           "apparent mass stays below this (kg): zero damping away from singularities.",
-          "positive"),
+          "positive", bound=Bound.MASS),
     Param("joint_limit_margin", 0.1, "Within this of a URDF position limit (rad or m) the "
-          "joint limit guard pushes back.", "nonnegative"),
-    Param("joint_limit_stiffness", 50.0, "Joint limit guard stiffness (N m/rad).", "nonnegative"),
+          "joint limit guard pushes back.", "nonnegative", bound=Bound.JOINT),
+    Param("joint_limit_stiffness", 50.0, "Joint limit guard stiffness (N m/rad).", "nonnegative",
+          bound=Bound.GAIN),
     Param("joint_limit_damping", 20.0, f"Joint limit guard: braking per rad/s beyond "
-          f"{VELOCITY_FRACTION:g} of a URDF velocity limit (N m s/rad).", "nonnegative"),
+          f"{VELOCITY_FRACTION:g} of a URDF velocity limit (N m s/rad).", "nonnegative", bound=Bound.GAIN),
 ]
 
 #: Packed form of the live NULL_SPACE_PARAMETERS (names = parameter names).

@@ -38,7 +38,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 
 SPHERE, PLANE = 0.0, 1.0
 
@@ -53,17 +53,18 @@ def contact_parameters(m: int, thesis: bool) -> list[Param]:
         surface, centre, radius, normal, f_dm = "plane", [0.0] * m, 1.0, [0.0] * (m - 1) + [1.0], 0.0
     return [
         Param("f_dm", f_dm, "Desired contact force magnitude f_dm (N) along the outward surface "
-              "normal: f_d = f_dm n (5.9; section 5.3: 10).", "nonnegative"),
+              "normal: f_d = f_dm n (5.9; section 5.3: 10).", "nonnegative", bound=Bound.FORCE),
         Param("surface", surface, "Controller's model of the surface, for the normal n: sphere "
               "|r - c| = R (section 5.3's circle) or plane n.(r - c) = 0.", "choice",
               choices=("sphere", "plane")),
         Param("surface_centre", centre, "Surface model: the sphere's centre c, or a point of "
-              "the plane (m, base frame).", "vector", m),
-        Param("surface_radius", radius, "Surface model: the sphere's radius R (m).", "positive"),
+              "the plane (m, base frame).", "vector", m, bound=Bound.LENGTH),
+        Param("surface_radius", radius, "Surface model: the sphere's radius R (m).", "positive",
+              bound=Bound.LENGTH),
         Param("surface_normal", normal, "Surface model: the plane's outward normal (normalised "
-              "here).", "vector", m),
+              "here).", "vector", m, bound=Bound.SCALE),
         Param("m_m", 1.2, "Desired impedance inertia m_m (kg) (5.6; section 5.3: 1.2).",
-              "positive"),
+              "positive", bound=Bound.MASS),
     ]
 
 

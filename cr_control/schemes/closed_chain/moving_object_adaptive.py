@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, matrix
+from cr_control.core.parameters import Bound, Param, matrix
 from cr_control.schemes.closed_chain import moving_object_model as mo
 from cr_control.schemes.controller import ControlOutput, KernelOutput
 
@@ -72,10 +72,10 @@ class MovingObjectAdaptiveController(mo.MovingObjectController):
 
     scheme = "moving_object_adaptive"
     PARAMETERS = mo.scheme_parameters([
-        Param("Gamma", matrix(7, 15.0), "Adaptation gain Gamma of (2.35).", "spd", 7),
+        Param("Gamma", matrix(7, 15.0), "Adaptation gain Gamma of (2.35).", "spd", 7, bound=Bound.GAIN),
         Param("P_hat_0", [0.2, 0.01, 0.4, 0.4, 0.1, 0.2, 0.2],
               "Initial estimates P_hat(0) (2.4); true P = [0.6135 0.0045 0.30225 0.441 0.147 "
-              "0.06 0.06] (DESIGN.md).", "vector", 7, read_only=True),
+              "0.06 0.06] (DESIGN.md).", "vector", 7, read_only=True, bound=Bound.MASS),
     ])
     extra_status_fields = mo.STATUS + ESTIMATE_FIELDS
 

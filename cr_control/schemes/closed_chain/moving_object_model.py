@@ -37,7 +37,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, matrix
+from cr_control.core.parameters import Bound, Param, matrix
 from cr_control.core.topics import REFERENCE_FIELDS
 from cr_control.schemes.controller import COMMON_PARAMETERS, Controller
 
@@ -54,36 +54,39 @@ JOINT_NAMES_PARAMETER = next(dataclasses.replace(p, default=JOINT_NAMES)
 #: Kinematics, desired motion and the gains shared by both schemes.
 GEOMETRY_PARAMETERS = [
     Param("link_length", [0.3, 0.3], "Link lengths d1, d2 of manipulator 1 (m) (kinematics).",
-          "positive_vector", 2, read_only=True),
+          "positive_vector", 2, read_only=True, bound=Bound.LENGTH),
     Param("base_position", [0.2, 0.0], "Base of manipulator 1, (a, 0) (m).", "vector", 2,
-          read_only=True),
-    Param("object_height", 0.5, "Height b of the object frame (m).", read_only=True),
+          read_only=True, bound=Bound.LENGTH),
+    Param("object_height", 0.5, "Height b of the object frame (m).", read_only=True, bound=Bound.LENGTH),
     Param("constraint_normal", [1.0, -1.0], "Normal of the line on the object, object frame "
           "(2.94: x_co - y_co = 0); normalised to n_c. Needs n_x != 0 and n_y != 0.", "vector", 2,
-          read_only=True),
+          read_only=True, bound=Bound.SCALE),
     Param("elbow_sign", 1.0, "Inverse-kinematics branch of q_d: sign of sin(theta2) (DESIGN.md: "
-          "s2 > 0).", read_only=True),
+          "s2 > 0).", read_only=True, bound=Bound.SIGN),
 ]
 
 MOTION_PARAMETERS = [
     Param("contact_amplitude", 1.0 / 12.0, "x_co = -A_c cos(w_c t + phi_c): A_c (m) (2.106).",
-          "nonnegative"),
-    Param("contact_frequency", 1.0, "x_co: w_c (rad/s) (2.106).", "nonnegative"),
-    Param("contact_phase", 2.0, "x_co: phi_c (rad) (2.106).", "finite"),
-    Param("object_centre", 0.1, "x_o = c_o - A_o sin(w_o t + phi_o): c_o (m) (2.107).", "finite"),
-    Param("object_amplitude", 0.1, "x_o: A_o (m) (2.107).", "nonnegative"),
-    Param("object_frequency", 4.0, "x_o: w_o (rad/s) (2.107).", "nonnegative"),
-    Param("object_phase", 12.0, "x_o: phi_o (rad) (2.107).", "finite"),
-    Param("lambda_d", 2.0, "Desired contact force lambda_d (N) (2.4).", "finite"),
+          "nonnegative", bound=Bound.LENGTH),
+    Param("contact_frequency", 1.0, "x_co: w_c (rad/s) (2.106).", "nonnegative",
+          bound=Bound.MOTION_FREQUENCY),
+    Param("contact_phase", 2.0, "x_co: phi_c (rad) (2.106).", "finite", bound=Bound.PHASE),
+    Param("object_centre", 0.1, "x_o = c_o - A_o sin(w_o t + phi_o): c_o (m) (2.107).", "finite",
+          bound=Bound.LENGTH),
+    Param("object_amplitude", 0.1, "x_o: A_o (m) (2.107).", "nonnegative", bound=Bound.LENGTH),
+    Param("object_frequency", 4.0, "x_o: w_o (rad/s) (2.107).", "nonnegative", bound=Bound.MOTION_FREQUENCY),
+    Param("object_phase", 12.0, "x_o: phi_o (rad) (2.107).", "finite", bound=Bound.PHASE),
+    Param("lambda_d", 2.0, "Desired contact force lambda_d (N) (2.4).", "finite", bound=Bound.FORCE),
 ]
 
 
 def gain_parameters() -> list[Param]:
     """K_e, K, k_lambda of (2.24-2.27) with the section 2.4 values."""
     return [
-        Param("K_e", matrix(2, 20.0), "K_e of r^1 = e^1' + K_e e^1 (2.24) (1/s).", "spd", 2),
-        Param("K", matrix(2, 15.0), "K of the feedback L^-T K r^1 (2.27).", "spd", 2),
-        Param("k_lambda", 15.0, "k_lambda of the force integral (2.27) (1/s).", "positive"),
+        Param("K_e", matrix(2, 20.0), "K_e of r^1 = e^1' + K_e e^1 (2.24) (1/s).", "spd", 2,
+              bound=Bound.GAIN),
+        Param("K", matrix(2, 15.0), "K of the feedback L^-T K r^1 (2.27).", "spd", 2, bound=Bound.GAIN),
+        Param("k_lambda", 15.0, "k_lambda of the force integral (2.27) (1/s).", "positive", bound=Bound.GAIN),
     ]
 
 

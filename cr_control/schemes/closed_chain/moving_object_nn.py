@@ -38,7 +38,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.schemes.blocks import rbf_network
 from cr_control.schemes.closed_chain import moving_object_model as mo
 from cr_control.schemes.controller import ControlOutput, KernelOutput
@@ -123,27 +123,28 @@ class MovingObjectNNController(mo.MovingObjectController):
     scheme = "moving_object_nn"
     PARAMETERS = mo.scheme_parameters([
         Param("K_s", 0.5, "K_s of the robust term L^-T K_s sat(r^1/Delta) (2.74); not given in "
-              "the thesis (N m).", "nonnegative"),
+              "the thesis (N m).", "nonnegative", bound=Bound.GAIN),
         Param("boundary_layer", 0.01, "Boundary layer Delta replacing sgn(r^1) (remark 2.3.6).",
-              "positive"),
-        Param("Gamma", 0.1, "Gamma_kij of the M^1 weights (2.79).", "positive"),
-        Param("Q", 0.2, "Q_kij of the C^1 weights (2.80).", "positive"),
-        Param("U", 5.0, "U_kij of the G^1 weights (2.81).", "positive"),
+              "positive", bound=Bound.SCALE),
+        Param("Gamma", 0.1, "Gamma_kij of the M^1 weights (2.79).", "positive", bound=Bound.GAIN),
+        Param("Q", 0.2, "Q_kij of the C^1 weights (2.80).", "positive", bound=Bound.GAIN),
+        Param("U", 5.0, "U_kij of the G^1 weights (2.81).", "positive", bound=Bound.GAIN),
         Param("rbf_variance", 40.0, "sigma^2 of the Gaussian activations (2.63).", "positive",
-              read_only=True),
+              read_only=True, bound=Bound.GAIN),
         Param("rbf_q_range", [-1.2, 1.7], "Centre grid: range of each joint angle (rad) (2.4).",
-              "vector", 2, read_only=True),
+              "vector", 2, read_only=True, bound=Bound.JOINT),
         Param("rbf_qdot_range", [-1.0, 1.0], "Centre grid: range of each joint rate (rad/s) "
-              "(2.4).", "vector", 2, read_only=True),
+              "(2.4).", "vector", 2, read_only=True, bound=Bound.JOINT_RATE),
         Param("rbf_grid_q", [12.0, 10.0], "Centres per axis (theta1, theta2) of the M^1 and G^1 "
-              "networks (12 x 10 = 120 nodes).", "positive_vector", 2, read_only=True),
+              "networks (12 x 10 = 120 nodes).", "positive_vector", 2, read_only=True,
+              bound=Bound.RBF_CENTRES),
         Param("rbf_grid_z", [5.0, 4.0, 3.0, 2.0], "Centres per axis (theta1, theta2, theta1', "
               "theta2') of the C^1 networks (5 x 4 x 3 x 2 = 120 nodes).", "positive_vector", 4,
-              read_only=True),
+              read_only=True, bound=Bound.RBF_CENTRES),
         Param("publish_true_norms", True, "Publish |M^1|, |C^1|, |G^1| from true_parameters "
               "beside the estimates (plots only; never used for control).", "bool"),
         Param("true_parameters", list(mo.TRUE_P), "P used only for the published true norms.",
-              "vector", 7),
+              "vector", 7, bound=Bound.MASS),
     ])
     extra_status_fields = mo.STATUS + NORM_FIELDS
 

@@ -99,7 +99,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, matrix
+from cr_control.core.parameters import Bound, Param, matrix
 from cr_control.schemes.controller import ControlOutput, KernelOutput
 from cr_control.schemes.flexible_joint import flexible_joint_scheme as fjs
 from cr_control.schemes.flexible_joint.flexible_joint_model import P_HAT_0, expanded_regressor_into
@@ -279,31 +279,32 @@ class FJRRobustAdaptiveController(fjs.FlexibleJointController):
     PARAMETERS = fjs.PARAMETERS + [
         fjs.k_e_parameter(3.5),
         Param("K_s_hat", matrix(2, 8.0), "Joint stiffness estimate K_s_hat in tau_m = "
-              "K_s_hat theta_d + ... (6.58) (N m/rad) (6.3.1: 8).", "spd", 2),
+              "K_s_hat theta_d + ... (6.58) (N m/rad) (6.3.1: 8).", "spd", 2, bound=Bound.STIFFNESS),
         Param("J_m_hat", matrix(2, 0.4), "Motor inertia estimate J_m_hat in (6.58) (kg m^2) "
-              "(6.3.1: 0.4).", "spd", 2),
+              "(6.3.1: 0.4).", "spd", 2, bound=Bound.INERTIA),
         Param("delta_K", 4.0, "delta_K >= ||K_s - K_s_hat|| (assumption 6.2) in k_tau = "
-              "delta_K ||theta_d|| + delta_J ||q_m''|| (6.59) (6.3.1: 4).", "nonnegative"),
+              "delta_K ||theta_d|| + delta_J ||q_m''|| (6.59) (6.3.1: 4).", "nonnegative",
+              bound=Bound.STIFFNESS),
         Param("delta_J", 2.0, "delta_J >= ||J_m - J_m_hat|| (assumption 6.2) in k_tau (6.59) "
-              "(6.3.1: 2).", "nonnegative"),
-        Param("K_sigma", matrix(2, 1.0), "K_sigma of theta_d (6.29) (6.3.1: 1).", "spd", 2),
+              "(6.3.1: 2).", "nonnegative", bound=Bound.INERTIA),
+        Param("K_sigma", matrix(2, 1.0), "K_sigma of theta_d (6.29) (6.3.1: 1).", "spd", 2, bound=Bound.GAIN),
         Param("K_mu", matrix(2, 1.5), "K_mu of mu' = -K_mu mu - J_Phi^T e_lambda (6.32) "
-              "(6.3.1: 1.5).", "spd", 2),
+              "(6.3.1: 1.5).", "spd", 2, bound=Bound.GAIN),
         Param("Gamma_p", matrix(N_P, 0.08), "Adaptation gain Gamma_p of p_hat' = Gamma_p "
               "Psi^T sigma (6.41), 10 x 10 (DESIGN.md: 0.08 I_10; the thesis prints 2 x 2).",
-              "spd", N_P),
+              "spd", N_P, bound=Bound.GAIN),
         Param("Gamma_k", matrix(2, 0.08), "Adaptation gain Gamma_k of k_s_inv_hat' = "
-              "-Gamma_k phi_2 (6.42) (6.3.1: 0.08).", "spd", 2),
+              "-Gamma_k phi_2 (6.42) (6.3.1: 0.08).", "spd", 2, bound=Bound.GAIN),
         Param("boundary_layer", 0.002, "Boundary layer Delta: sgn(s) of (6.58) replaced by "
               "s / Delta for |s| < Delta, element-wise (remark 6.2.3) (6.3.1: 0.002).",
-              "positive"),
+              "positive", bound=Bound.SCALE),
         Param("p_hat_0", list(P_HAT_0) * 2, "Initial estimates p_hat(0) of the 10-parameter "
               "block form (section 6.3: [0.092 0.0007 0.045 0.066 0.022] twice); p_hat "
               "estimates [p / k_s1; p / k_s2], true p = [0.6135 0.0045 0.30225 0.441 0.147] "
-              "(DESIGN.md).", "vector", N_P, read_only=True),
+              "(DESIGN.md).", "vector", N_P, read_only=True, bound=Bound.MASS),
         Param("ks_inv_hat_0", [0.125, 0.125], "Initial estimates k_s_inv_hat(0) of K_s^-1 "
               "(6.21) (rad/(N m)); the thesis gives none: 1 / K_s_hat = 0.125.", "vector", 2,
-              read_only=True),
+              read_only=True, bound=100.0),     # a joint softer than 0.01 N m/rad is none
         Param("motor_acceleration", "filtered", "Source of q_m'' in (6.58-6.59) (assumption "
               "6.3): 'filtered' (a critically damped state-variable filter on q_m'; default) or "
               "'measured' (the plant's joint1/2_motor_acceleration sensors, the filter "
@@ -311,7 +312,7 @@ class FJRRobustAdaptiveController(fjs.FlexibleJointController):
               "+-max_effort clip, see the docstring).", "choice", choices=MOTOR_ACCELERATION),
         Param("motor_acceleration_bandwidth", 50.0, "Bandwidth w (rad/s) of the q_m'' filter "
               "w^2 s / (s + w)^2 on q_m' (runs in both modes, published as "
-              "qddot_m_filtered_*).", "positive"),
+              "qddot_m_filtered_*).", "positive", bound=Bound.BANDWIDTH),
     ]
     extra_status_fields = fjs.STATUS + OWN_STATUS
     plant_sensor_fields = ("joint1_motor_acceleration", "joint2_motor_acceleration")

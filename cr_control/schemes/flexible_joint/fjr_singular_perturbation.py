@@ -114,7 +114,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, matrix
+from cr_control.core.parameters import Bound, Param, matrix
 from cr_control.schemes.controller import ControlOutput, KernelOutput
 from cr_control.schemes.flexible_joint import flexible_joint_scheme as fjs
 from cr_control.schemes.flexible_joint.flexible_joint_model import (
@@ -398,30 +398,33 @@ class FJRSingularPerturbationController(fjs.FlexibleJointController):
     PARAMETERS = fjs.PARAMETERS + [
         Param("joint_stiffness", [300.0, 300.0], "Joint stiffness K_s (N m/rad), known to "
               "this scheme (6.62-6.67, 6.79, 6.97; 6.3.2: 300); must equal the plant's "
-              "joint_stiffness.", "positive_vector", 2),
+              "joint_stiffness.", "positive_vector", 2, bound=Bound.STIFFNESS),
         Param("motor_inertia", [1.0, 1.0], "Motor inertia J_m (kg m^2), known to this scheme "
-              "(6.78; 6.3.2: 1.0); must equal the plant's motor_inertia.", "positive_vector", 2),
-        Param("K_p", matrix(2, 80.0), "Motor position gain K_p of (6.78) (6.3.2).", "spd", 2),
-        Param("K_v", matrix(2, 80.0), "Motor velocity gain K_v of (6.78) (6.3.2).", "spd", 2),
+              "(6.78; 6.3.2: 1.0); must equal the plant's motor_inertia.", "positive_vector", 2,
+              bound=Bound.INERTIA),
+        Param("K_p", matrix(2, 80.0), "Motor position gain K_p of (6.78) (6.3.2).", "spd", 2,
+              bound=Bound.GAIN),
+        Param("K_v", matrix(2, 80.0), "Motor velocity gain K_v of (6.78) (6.3.2).", "spd", 2,
+              bound=Bound.GAIN),
         Param("k_c", 1.5, "k_c of the slow control k_c M_hat r (6.102, 6.105) (6.3.2).",
-              "positive"),
+              "positive", bound=Bound.GAIN),
         fjs.k_e_parameter(3.5),
         Param("gamma_0", 1.0, "gamma_0 of the forgetting factor gamma(t) = gamma_0 (1 - "
-              "||Gamma^-1|| / k_0) (6.106) (6.3.2).", "positive"),
+              "||Gamma^-1|| / k_0) (6.106) (6.3.2).", "positive", bound=Bound.GAIN),
         Param("gamma_1", 7.0, "gamma_1 of the adaptation (6.103); must exceed gamma_2 "
-              "(theorem 6.2.2) (6.3.2).", "positive"),
+              "(theorem 6.2.2) (6.3.2).", "positive", bound=Bound.GAIN),
         Param("gamma_2", 2.0, "gamma_2 of the gain update (6.104); must be below gamma_1 "
-              "(6.3.2).", "positive"),
+              "(6.3.2).", "positive", bound=Bound.GAIN),
         Param("Gamma_0", matrix(N_P, 60.0), "Initial adaptation gain matrix Gamma(0) of "
-              "(6.103-6.104) (6.3.2).", "spd", N_P, read_only=True),
+              "(6.103-6.104) (6.3.2).", "spd", N_P, read_only=True, bound=Bound.GAIN),
         Param("alpha", 5.0, "alpha of the filter w(s) = alpha / (s + alpha) (6.96) (1/s) "
-              "(6.3.2).", "positive"),
+              "(6.3.2).", "positive", bound=Bound.BANDWIDTH),
         Param("k_0", 5.0, "k_0 of (6.106): ceiling of the adaptation gain ||Gamma^-1|| "
               "(lemma 6.2.1); not given in the thesis: 5 chosen (module docstring); must "
-              "exceed ||Gamma_0^-1||.", "positive"),
+              "exceed ||Gamma_0^-1||.", "positive", bound=Bound.GAIN),
         Param("p_hat_0", list(P_HAT_0), "Initial estimates p_hat(0) (6.3); true p = "
               "[0.6135 0.0045 0.30225 0.441 0.147] (DESIGN.md).", "vector", N_P,
-              read_only=True),
+              read_only=True, bound=Bound.MASS),
         Param("slow_control", True, "Include the slow adaptive control tau_s (6.102) and "
               "its adaptation (6.103-6.106); false: motor feedback only, p_hat held at "
               "p_hat_0 (figures 6.16-6.18).", "bool"),

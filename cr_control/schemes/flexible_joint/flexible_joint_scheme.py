@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, matrix
+from cr_control.core.parameters import Bound, Param, matrix
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 from cr_control.schemes.controller import COMMON_PARAMETERS, Controller
 from cr_control.schemes.flexible_joint.flexible_joint_model import constraint_into, desired_motion_jets
@@ -62,20 +62,21 @@ PARAMETERS = [
     Param("state_joint_names", STATE_JOINTS, "Joints read from /joint_states: links q_l, then "
           "motors q_m (6.3), in this order.", "string_list", read_only=True),
     Param("link_length", [0.3, 0.3], "Link lengths l1, l2 (m) (section 6.3; DESIGN.md).",
-          "positive_vector", 2, read_only=True),
+          "positive_vector", 2, read_only=True, bound=Bound.LENGTH),
     Param("surface_normal", [1.0, -1.0], "Raw normal n of the rigid surface n . r + c = 0 "
           "(x - y + 0.35 = 0, DESIGN.md); normalised, so lambda is the normal force (N).",
-          "vector", 2, read_only=True),
+          "vector", 2, read_only=True, bound=Bound.SCALE),
     Param("surface_offset", 0.35, "c of the surface n . r + c = 0 (m, raw normal).",
-          read_only=True),
+          read_only=True, bound=Bound.LENGTH),
     Param("elbow_sign", -1.0, "Inverse-kinematics branch of q_ld: sign of sin(theta2) "
-          "(section 6.3: sin(theta2d) < 0).", read_only=True),
+          "(section 6.3: sin(theta2d) < 0).", read_only=True, bound=Bound.SIGN),
     Param("path_centre", [0.0, 0.35], "Desired path r_d = c + a cos(w t + phi): c (m) "
-          "(section 6.3).", "vector", 2),
-    Param("path_amplitude", [-0.1, -0.1], "r_d: a (m) (x_d = -0.1 cos 2t).", "vector", 2),
-    Param("path_frequency", 2.0, "r_d: w (rad/s).", "nonnegative"),
-    Param("path_phase", 0.0, "r_d: phi (rad).", "finite"),
-    Param("lambda_d", 2.0, "Desired constraint force lambda_d (N) (section 6.3).", "finite"),
+          "(section 6.3).", "vector", 2, bound=Bound.LENGTH),
+    Param("path_amplitude", [-0.1, -0.1], "r_d: a (m) (x_d = -0.1 cos 2t).", "vector", 2, bound=Bound.LENGTH),
+    Param("path_frequency", 2.0, "r_d: w (rad/s).", "nonnegative", bound=Bound.MOTION_FREQUENCY),
+    Param("path_phase", 0.0, "r_d: phi (rad).", "finite", bound=Bound.PHASE),
+    Param("lambda_d", 2.0, "Desired constraint force lambda_d (N) (section 6.3).", "finite",
+          bound=Bound.FORCE),
 ]
 
 
@@ -97,7 +98,7 @@ class FlexibleJointController(Controller):
 def k_e_parameter(default: float) -> Param:
     """K_e of r = e' + K_e e (6.14, 6.76) with ``default`` on the diagonal."""
     return Param("K_e", matrix(2, default), "K_e of r = e' + K_e e (6.14, 6.76) (1/s); the "
-                 "robust scheme uses its (1,1) entry (n - m = 1).", "spd", 2)
+                 "robust scheme uses its (1,1) entry (n - m = 1).", "spd", 2, bound=Bound.GAIN)
 
 
 #: Packed shared gains.

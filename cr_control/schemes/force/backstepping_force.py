@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 from cr_control.schemes.blocks import backstepping as bs
 from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
 
@@ -50,22 +50,23 @@ _JOINTS = Param("joint_names", ["delta"], "Joints commanded, in command order (o
                 "joint along the surface normal).", "string_list", read_only=True)
 
 PARAMETERS = [
-    Param("f_d", 1.0, "Desired constraint force f_d (N) (section 4.3: 1 N).", "finite"),
+    Param("f_d", 1.0, "Desired constraint force f_d (N) (section 4.3: 1 N).", "finite", bound=Bound.FORCE),
     Param("h", [2.0, 2.0], "Backstepping gains h_1, h_2 (4.34, 4.56; the proof wants > 1).",
-          "positive_vector", 2),
+          "positive_vector", 2, bound=Bound.GAIN),
     Param("gamma", 0.01, "Adaptation gain of d_hat, the estimate of 1/b_3 (4.40); 0 stops it.",
-          "nonnegative"),
+          "nonnegative", bound=Bound.GAIN),
     Param("Gamma", [45.0, 60.0, 60.0, 60.0, 45.0, 45.0, 45.0, 45.0, 10.0],
           "Diagonal of the adaptation gain Gamma of theta_hat (4.55); 0 stops it.",
-          "nonnegative_vector", P),
+          "nonnegative_vector", P, bound=Bound.GAIN),
     Param("lambda", [12.0, 5.0, 15.0, 2.0, 4.0], "K-filter gain lambda: A0 = A - lambda e_1^T "
-          "must be Hurwitz (4.16-4.17).", "vector", N, read_only=True),
+          "must be Hurwitz (4.16-4.17).", "vector", N, read_only=True, bound=Bound.POLYNOMIAL),
     Param("theta_hat_0", INITIAL_ESTIMATES["printed_nominal"][0],
           "Initial theta_hat = [b3 b2 b1 b0 a4 a3 a2 a1 a0] (thesis: 0.65 x the printed "
           "nominal theta; 0.65 x the true one is the other documented choice).", "vector", P,
-          read_only=True),
+          read_only=True, bound=Bound.POLYNOMIAL),
     Param("d_hat_0", INITIAL_ESTIMATES["printed_nominal"][1],
-          "Initial estimate of 1/b_3 (thesis: 0.65 x 0.05).", "finite", read_only=True),
+          "Initial estimate of 1/b_3 (thesis: 0.65 x 0.05).", "finite", read_only=True,
+          bound=Bound.POLYNOMIAL),
     Param("bumpless_start", False, "Start the K-filters at their steady state for the first "
           "measured force and delta_c = delta(0) instead of at zero.", "bool", read_only=True),
 ]

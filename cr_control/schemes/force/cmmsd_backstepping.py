@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.schemes.blocks import backstepping as bs
 from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
 
@@ -33,30 +33,31 @@ _JOINTS = Param("joint_names", ["q1", "q2"], "The chain's joints q1..qN in order
                 read_only=True)
 
 PARAMETERS = [
-    Param("zeta", 1.0, "Backstepping gain zeta_i (all steps; C.39, C.47, C.50).", "positive"),
+    Param("zeta", 1.0, "Backstepping gain zeta_i (all steps; C.39, C.47, C.50).", "positive",
+          bound=Bound.SCALE),
     Param("nonlinear_damping", 0.0, "Nonlinear damping d_i of steps 2..2N-1 (C.47 prints 1/4; "
           "0 by default: the gamma_i^2 terms raise the degree of the alpha_i and made N = 2 "
-          "peak and diverge from q_1(0) = 0.1 m).", "nonnegative"),
+          "peak and diverge from q_1(0) = 0.1 m).", "nonnegative", bound=Bound.GAIN),
     Param("gamma", 0.01, "Adaptation gain of d_hat, the estimate of 1/d_2N (C.40).",
-          "nonnegative"),
-    Param("Gamma", 0.01, "Adaptation gain Gamma = this x I (C.56).", "nonnegative"),
+          "nonnegative", bound=Bound.GAIN),
+    Param("Gamma", 0.01, "Adaptation gain Gamma = this x I (C.56).", "nonnegative", bound=Bound.GAIN),
     Param("observer_pole", 1.0, "A0 = A - lambda e_1^T has all its 2N poles at -this (C.13).",
-          "positive", read_only=True),
+          "positive", read_only=True, bound=Bound.BANDWIDTH),
     Param("nominal_mass", 1.0, "Nominal m_i (kg) of the controller's nominal chain.", "positive",
-          read_only=True),
+          read_only=True, bound=Bound.MASS),
     Param("nominal_damping", 0.5, "Nominal b_i (N s/m) of the nominal chain.", "nonnegative",
-          read_only=True),
+          read_only=True, bound=Bound.DAMPING),
     Param("nominal_stiffness", 4.0, "Nominal k_i (N/m) of the nominal chain.", "positive",
-          read_only=True),
+          read_only=True, bound=Bound.STIFFNESS),
     Param("initial_estimate_scale", 0.65, "Without theta_hat_0: theta_hat(0) and d_hat(0) are "
           "this x the nominal chain's theta and 1/d_2N (as chapter 4 starts at 0.65 x).",
-          "finite", read_only=True),
+          "finite", read_only=True, bound=Bound.SCALE),
     Param("theta_hat_0", [], "Initial theta_hat = [d_2N, a_{2N,2N-1} .. a_{2N,0}] (2N+1 "
           "values); empty = initial_estimate_scale x the nominal chain's.", "vector",
-          read_only=True),
+          read_only=True, bound=Bound.POLYNOMIAL),
     Param("d_hat_0", 0.0, "Initial estimate of 1/d_2N; 0 = initial_estimate_scale x the "
-          "nominal chain's.", "finite", read_only=True),
-    Param("q_d", 0.0, "Set point of q_1 (m) (appendix C: 0).", "finite"),
+          "nominal chain's.", "finite", read_only=True, bound=Bound.POLYNOMIAL),
+    Param("q_d", 0.0, "Set point of q_1 (m) (appendix C: 0).", "finite", bound=Bound.LENGTH),
 ]
 
 

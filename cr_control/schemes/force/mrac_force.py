@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 from cr_control.schemes.blocks import diophantine
 from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
 from cr_control.schemes.force.backstepping_force import _JOINTS, TRUE_THETA
@@ -36,20 +36,21 @@ THETA_F_NAMES = (["r3p", "r2p", "r1p", "r0p"] + [f"s{i}" for i in range(4, -1, -
                  + [f"t{i}" for i in range(4, -1, -1)])
 
 PARAMETERS = [
-    Param("f_d", 1.0, "Desired constraint force f_d (N) (section 4.3: 1 N).", "finite"),
-    Param("zeta", 0.7, "Damping ratio of the reference model (4.62).", "positive", read_only=True),
+    Param("f_d", 1.0, "Desired constraint force f_d (N) (section 4.3: 1 N).", "finite", bound=Bound.FORCE),
+    Param("zeta", 0.7, "Damping ratio of the reference model (4.62).", "positive", read_only=True,
+          bound=Bound.SCALE),
     Param("omega", 0.5, "Natural frequency of the reference model (4.62) (rad/s).", "positive",
-          read_only=True),
+          read_only=True, bound=Bound.BANDWIDTH),
     Param("observer_polynomial", [19.0, 65.0, 77.0, 30.0],
           "Observer polynomial P_o = p^4 + o3 p^3 + o2 p^2 + o1 p + o0: [o3, o2, o1, o0] "
-          "(Hurwitz, faster than A_m).", "vector", 4, read_only=True),
+          "(Hurwitz, faster than A_m).", "vector", 4, read_only=True, bound=Bound.POLYNOMIAL),
     Param("gamma_f", 0.8, "Adaptation gain gamma_f of (4.76)-(4.77); 0 stops adaptation.",
-          "nonnegative"),
+          "nonnegative", bound=Bound.GAIN),
     Param("theta_f_hat_0", [0.65 * x for x in TRUE_THETA_F_CASE1],
           "Initial theta_f_hat = [r3' r2' r1' r0' s4..s0 t4..t0] (thesis: 0.65 x the true "
-          "theta_f of case 1, corrected).", "vector", 14, read_only=True),
+          "theta_f of case 1, corrected).", "vector", 14, read_only=True, bound=Bound.POLYNOMIAL),
     Param("b3_hat_0", 0.65 * TRUE_THETA[1][0], "Initial b_3 estimate (thesis: 0.65 x b_3).",
-          "finite", read_only=True),
+          "finite", read_only=True, bound=Bound.POLYNOMIAL),
     Param("bumpless_start", False, "Start the filters at their steady state for the first "
           "measured force, f_d and delta_c = delta(0) instead of at zero.", "bool", read_only=True),
 ]

@@ -22,6 +22,7 @@ node's ``~/target_pose`` and ``~/target_wrench``) take effect from the next cycl
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -46,6 +47,24 @@ from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, Control
 JOINT_NAMES = Param("joint_names", [], "Joints commanded, in the order of the commands and of "
                     "forward_command_topic's array; empty = the chain's joints from base_link to "
                     "tip_link (a permutation of them is allowed).", "string_list", read_only=True)
+
+#: max_effort on a URDF arm is at most this times the chain's largest ``<limit effort>``:
+#: every joint is clipped at its own limit first, so a larger value clips nothing (a slip
+#: of units, N mm for N m).
+EFFORT_LIMIT_FACTOR = 10.0
+
+
+def max_effort_on(param: Param, model: TaskModel) -> Param:
+    """The common ``max_effort`` bounded by the chain's effort limits (where the URDF gives
+    them), its default lowered to that bound if it was above (the same commands either way)."""
+    effort = model.chain_model.limits.effort
+    effort = effort[np.isfinite(effort) & (effort > 0)]
+    if effort.size == 0:
+        return param
+    bound = min(param.bound, EFFORT_LIMIT_FACTOR * float(effort.max()))
+    return replace(param, default=min(param.default, bound), bound=bound, description=(
+        f"{param.description} At most {EFFORT_LIMIT_FACTOR:g}x the URDF's largest <limit "
+        "effort> (each joint is clipped at its own limit first)."))
 
 
 class TaskSpaceController(Controller):
@@ -75,7 +94,7 @@ class TaskSpaceController(Controller):
         for p in ROBOT_PARAMETERS:
             if p.name in cls.ROBOT_DEFAULTS:
                 default, description = cls.ROBOT_DEFAULTS[p.name]
-                p = Param(p.name, default, description, p.kind, p.size, p.read_only, p.choices)
+                p = replace(p, default=default, description=description)
             out.append(p)
         return out
 
@@ -98,7 +117,9 @@ class TaskSpaceController(Controller):
         robot = cls.robot_values(given)
         model = task_model(robot, cls.MODEL_FREE)
         thesis = cls.is_thesis_robot(robot)
-        common = [JOINT_NAMES if p.name == "joint_names" else p for p in COMMON_PARAMETERS]
+        own = {"joint_names": JOINT_NAMES, "max_effort": max_effort_on(
+            next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model)}
+        common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
         return (common + cls.robot_parameters() + cls.reference_parameters(model.m, thesis)
                 + NULL_SPACE_PARAMETERS + cls.law_parameters(model, thesis))
 
@@ -154,6 +175,7 @@ class TaskSpaceController(Controller):
                                  f"({values['base_link']} -> {values['tip_link']})")
         values = {**values, "joint_names": given or chain_joints}
         self._check_sizes(values)
+        self.check_values(values)
         self.reference_fields, base_status = status_fields(self.model)
         self._law_fields = self.law_status_fields()
         self._status = base_status + self._law_fields
@@ -161,6 +183,8 @@ class TaskSpaceController(Controller):
         n, m = self.model.n, self.model.m
         self.command_order = np.array([chain_joints.index(j) for j in values["joint_names"]],
                                       dtype=float)
+        # the kernel clips each command to its URDF effort: Controller.step's saturation guard
+        self.command_limits = self.model.limits[3 * n:][self.command_order.astype(int)].copy()
         self.common = common_gains_layout(n, m)
         self.law_gains = self.law_gains_layout()
         self.gains = np.zeros(self.common.size + self.law_gains.size)
@@ -185,6 +209,19 @@ class TaskSpaceController(Controller):
         if len(posture) not in (0, self.model.n):
             raise ParameterError(f"posture needs {self.model.n} values (one per chain joint "
                                  f"{list(self.model.joint_names)}) or none, got {len(posture)}")
+
+    def check_values(self, values: dict) -> None:
+        """Refuse a posture outside the chain's URDF position limits (``posture`` is bounded
+        by Bound.JOINT alone; a joint without limits has no more)."""
+        posture = values.get("posture", [])
+        if len(posture) != self.model.n:
+            return
+        lim = self.model.chain_model.limits
+        for name, q, lower, upper in zip(self.model.joint_names, posture, lim.lower, lim.upper,
+                                         strict=True):
+            if not lower <= q <= upper:
+                raise ParameterError(f"posture: {name} = {q:g} is outside its URDF limits "
+                                     f"[{lower:g}, {upper:g}]")
 
     def pack_gains(self) -> None:
         """Copy the parameter values into the packed gains the kernel reads."""

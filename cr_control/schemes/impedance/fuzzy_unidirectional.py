@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 from cr_control.schemes.blocks.fuzzy import rule_set_2_damping
 from cr_control.schemes.blocks.unidirectional_impedance import normal_sliding
 from cr_control.schemes.impedance.unidirectional import (
@@ -31,21 +31,21 @@ from cr_control.schemes.impedance.unidirectional import (
 
 FUZZY_PARAMETERS = [
     Param("lambda", 5.0, "lambda of s = n^T e_r' + lambda n^T e_r (5.18) and k_m = lambda d_m "
-          "(1/s) (section 5.3: 5).", "positive"),
+          "(1/s) (section 5.3: 5).", "positive", bound=Bound.GAIN),
     Param("k_p", 1.0, "Slope k_p of mu_positive(x) = 1/(1 + exp(-k_p x)) (5.13), per unit of x "
-          "(m/s for s, N for force errors) (section 5.3: 1).", "positive"),
+          "(m/s for s, N for force errors) (section 5.3: 1).", "positive", bound=Bound.GAIN),
     Param("k_n", 1.0, "Slope k_n of mu_negative(x) = 1/(1 + exp(k_n x)) (5.14) (section 5.3: 1).",
-          "positive"),
+          "positive", bound=Bound.GAIN),
     Param("d_s", 5.0, "Centre d_s of the output set 'small' (5.16) (N s/m) (section 5.3: 5).",
-          "positive"),
+          "positive", bound=Bound.GAIN),
     Param("d_med", 15.0, "Centre d_med of the output set 'medium' (5.17) (N s/m) "
-          "(section 5.3: 15).", "positive"),
+          "(section 5.3: 15).", "positive", bound=Bound.GAIN),
     Param("d_b", 25.0, "Centre d_b of the output set 'big' (5.15) (N s/m) (section 5.3: 25).",
-          "positive"),
+          "positive", bound=Bound.GAIN),
     Param("f_max", 12.0, "Largest contact force allowed f_max (N): e_fmin = f_dm - f_max (5.12) "
-          "(section 5.3: 12).", "nonnegative"),
+          "(section 5.3: 12).", "nonnegative", bound=Bound.FORCE),
     Param("f_min", 1.0, "Smallest contact force wanted f_min (N): e_fmax = f_dm - f_min (5.12, "
-          "DESIGN.md) (section 5.3: 1).", "nonnegative"),
+          "DESIGN.md) (section 5.3: 1).", "nonnegative", bound=Bound.FORCE),
 ]
 
 

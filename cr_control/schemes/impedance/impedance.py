@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 from cr_control.schemes.impedance.unidirectional import (
     UnidirectionalController,
     unidirectional_back,
@@ -42,7 +42,7 @@ class ImpedanceController(UnidirectionalController):
     def own_parameters(cls):
         return [
             Param("d_m", 12.0, "Desired impedance damping d_m (N s/m) (section 5.3: 12).",
-                  "positive"),
+                  "positive", bound=Bound.GAIN),
             Param("k_m", 60.0, "Desired impedance stiffness k_m (N/m) (section 5.3: 60).",
-                  "nonnegative"),
+                  "nonnegative", bound=Bound.GAIN),
         ]

@@ -55,7 +55,7 @@ from numba import njit
 
 from cr_control.core.linalg import matvec, spectral_norm
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.models import spatial_chain as sc
 from cr_control.schemes.blocks import impedance_adaptation as impedance
 from cr_control.schemes.blocks import rbf_network
@@ -72,27 +72,30 @@ def nn_parameters(n: int, seed: list[float], null_space_model: bool) -> list[Par
     """The network's parameters (section 3.5.3 values); ``seed`` is rbf_seed's default."""
     return [
         Param("d", 0.5, "Switching gain d >= |E_M r_eq'' + E_C r_eq' + E_G| (3.78); the bound of "
-              "the approximation error is unknown (N).", "nonnegative"),
+              "the approximation error is unknown (N).", "nonnegative", bound=Bound.FORCE),
         Param("Gamma_M", 8.0, "Adaptation gain Gamma_Mkj = Gamma_M I of the M_r weights (3.79).",
-              "positive"),
+              "positive", bound=Bound.GAIN),
         Param("Gamma_C", 6.0, "Adaptation gain Gamma_Ckj = Gamma_C I of the C_r weights (3.80).",
-              "positive"),
+              "positive", bound=Bound.GAIN),
         Param("Gamma_G", 10.0, "Adaptation gain Gamma_Gk = Gamma_G I of the G_r weights (3.81).",
-              "positive"),
+              "positive", bound=Bound.GAIN),
         Param("rbf_variance", 50.0, "Variance sigma^2 of the Gaussian activations (3.69).",
-              "positive", read_only=True),
+              "positive", read_only=True, bound=Bound.GAIN),
         Param("rbf_centres_per_dim", 4, "RBF centres per input dimension (>= 1): per_dim^n nodes "
               "in the q-networks, per_dim^2n in the (q, q')-networks, up to rbf_max_nodes.",
-              "integer", read_only=True),
+              "integer", read_only=True, bound=Bound.RBF_CENTRES),
         Param("rbf_max_nodes", 256, "Largest network (>= 1): a bigger grid is replaced by this "
-              "many Halton points over the same box.", "integer", read_only=True),
+              "many Halton points over the same box.", "integer", read_only=True,
+              bound=Bound.RBF_NODES),
         Param("rbf_q_margin", 0.3, "Centre grid: margin added to the joint-position range of the "
-              "desired motion (rad).", "nonnegative", read_only=True),
+              "desired motion (rad).", "nonnegative", read_only=True, bound=Bound.JOINT),
         Param("rbf_qdot_margin", 0.5, "Centre grid: margin added to the joint-velocity range of "
-              "the desired motion (rad/s).", "nonnegative", read_only=True),
+              "the desired motion (rad/s).", "nonnegative", read_only=True,
+              bound=Bound.JOINT_RATE),
         Param("rbf_seed", seed, "Joint configuration the inverse kinematics of the desired "
               f"motion starts from ({n} values; it chooses the arm's branch); empty = posture, "
-              "else the URDF's neutral clipped into the limits.", "vector", read_only=True),
+              "else the URDF's neutral clipped into the limits.", "vector", read_only=True,
+              bound=Bound.JOINT),
         Param("publish_true_norms", True, "Publish |M_r|, |C_r|, |G_r| of the URDF's model beside "
               "the estimates (for plots only; not used in control).", "bool"),
         Param("null_space_model", null_space_model, "The orientation and posture tasks beside "

@@ -25,19 +25,21 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param
+from cr_control.core.parameters import Bound, Param
 from cr_control.schemes.blocks import impedance_adaptation as impedance
 from cr_control.schemes.blocks.sliding_impedance import sliding_parameters
 from cr_control.schemes.blocks.task_space import model_force
 from cr_control.schemes.impedance.sliding import SlidingController, sliding_back, sliding_front
 
 UNCERTAINTY_PARAMETERS = [
-    Param("delta_M", 0.1, "Bound dM of |M_r - M_r^| (3.36), used in d (3.51).", "nonnegative"),
-    Param("delta_C", 0.1, "Bound dC of |C_r - C_r^| (3.37), used in d (3.51).", "nonnegative"),
+    Param("delta_M", 0.1, "Bound dM of |M_r - M_r^| (3.36), used in d (3.51).", "nonnegative",
+          bound=Bound.MASS),
+    Param("delta_C", 0.1, "Bound dC of |C_r - C_r^| (3.37), used in d (3.51).", "nonnegative",
+          bound=Bound.GAIN),
     Param("delta_G", 0.05, "Bound dG of |G_r - G_r^| (3.38), used in d (3.51) (N).",
-          "nonnegative"),
+          "nonnegative", bound=Bound.FORCE),
     Param("delta_f", 0.1, "Bound df of the disturbance force |f~| (3.39), used in d (3.51) (N).",
-          "nonnegative"),
+          "nonnegative", bound=Bound.FORCE),
 ]
 
 
