@@ -3,7 +3,8 @@
 Round trip ("command age"): wall time from publishing a state to receiving the command
 computed from it. A cycle is fresh when the command applied at a tick answers the state
 published at the tick before. The plant node also reports its safety state here (safe
-stop and its reason, commands clipped and refused, publishers on its topics): attributes
+stop and its reason, commands clipped and refused, publishers on its topics, the one
+commander's refusals and handovers): attributes
 it sets, so every loop that uses these statistics publishes the same PLANT_TIMING_FIELDS.
 """
 
@@ -68,6 +69,11 @@ class LoopStats:
         self.state_publishers = 0
         #: Longest run of consecutive ticks without a new command in the window.
         self.window_max_missed_run = 0
+        #: One commander at a time (issue 25): commands refused because another publisher
+        #: commands, commands refused unread for their size, and changes of commander.
+        self.commands_foreign = 0
+        self.commands_oversized = 0
+        self.commander_handovers = 0
 
     def cycle(self, fresh: bool, step_time: float = 0.0) -> None:
         """Count one tick of the loop; ``step_time`` (s) is the time spent computing it."""
@@ -132,6 +138,9 @@ class LoopStats:
             float(self.state_publishers),
             float(self.window_max_missed_run),
             float(self.safe_stop_reason),
+            float(self.commands_foreign),
+            float(self.commands_oversized),
+            float(self.commander_handovers),
         ]
         self._window_ages.clear()
         self._window_cycles = self._window_fresh = 0

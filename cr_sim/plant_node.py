@@ -48,16 +48,29 @@ Safety (issue 7), modelled on libfranka:
   with the values (``REFLEX: ...``), ``safe_stop_reason`` 2 (force) or 3 (velocity), ended
   by ``resume`` as above. In lockstep each command still advances the plant one period (the
   loop and a recording go on deterministically) but the brakes' command is applied instead.
+- One commander at a time (issue 25; ros2_control lets one controller claim an interface,
+  libfranka takes one control connection): the publisher of the first valid command is
+  the commander; commands from any other publisher on /joint_commands are refused unread
+  (a bytes comparison of the publisher GIDs, :mod:`cr_control.nodes.sender_aware`),
+  counted in ``commands_foreign`` and logged once. Another publisher takes over with a
+  valid command only after the commander has sent nothing for ``command_handover_cycles``
+  (50) cycles: a restarted or switched controller takes over before the watchdog's safe
+  stop (100); a stalled one is not displaced by a stray publisher meanwhile. Lockstep has
+  no ticks: there the silence is that many periods of wall time. Handovers are logged and
+  counted (``commander_handovers``).
+- A command longer than ``MAX_COMMAND_BYTES`` (64 joints' worth) is refused unread
+  (counted in ``commands_oversized``, logged once).
 - Another publisher on /joint_commands or /joint_states (a second session on this
-  domain, a rogue node) is checked once a second: warned once and counted in
+  domain, a rogue node) is also checked once a second: warned once and counted in
   ``command_publishers`` / ``state_publishers``, so the recording shows it.
 
 Hot path (issue 6): the state, wrench, sensors and clock messages are built once as CDR
 bytes and refilled in place each tick (:class:`cr_control.core.cdr.Writer`: numpy views
-onto their numbers), published as bytes; commands are taken serialized (``raw=True``)
-and read from their bytes (:mod:`cr_control.nodes.raw_messages`): no ROS message object
-per tick. The time spent building and publishing the state is reported as
-``publish_time_us``.
+onto their numbers), published as bytes; commands are taken serialized, with their
+publisher's GID (:mod:`cr_control.nodes.sender_aware`: 20-30 us more per command than a
+``raw=True`` subscription on EventsExecutor, for the GID rclpy does not give), and read
+from their bytes (:mod:`cr_control.nodes.raw_messages`): no ROS message object per tick.
+The time spent building and publishing the state is reported as ``publish_time_us``.
 """
 
 from __future__ import annotations
@@ -76,7 +89,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension, String
 
 from cr_control.core import cdr, topics
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import Bound, Param, ParameterError
+from cr_control.nodes import sender_aware
 from cr_control.nodes.lockstep import ReaderPacer, wait_for_readers
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.raw_messages import JointStateFields, JointStateReader
@@ -96,36 +110,49 @@ from cr_sim.plants.registry import SCENARIOS
 NODE_PARAMETERS = [
     Param("mode", "realtime", "realtime: wall-clock timer; lockstep: step on each command.",
           "choice", choices=("realtime", "lockstep"), read_only=True),
+    # 10 kHz: beyond the fastest robot interfaces (1-8 kHz).
     Param("rate_hz", 1000.0, "Control rate (Hz): ticks per second in realtime, 1/period in "
-          "lockstep.", "positive", read_only=True),
+          "lockstep.", "positive", read_only=True, bound=1e4),
     Param("duration", 0.0, "Simulated seconds to run before stopping; 0 = until stopped.",
-          "nonnegative", read_only=True),
+          "nonnegative", read_only=True, bound=Bound.TIME),
     Param("wait_for_recorder", False, "Start only after the recorder says it is ready "
           f"({topics.RECORDER_READY}), so a recording misses nothing.", "bool", read_only=True),
     Param("lockstep_resend_s", 1.0, "Lockstep: republish the state if no command came for "
-          "this long (wall s).", "positive", read_only=True),
+          "this long (wall s).", "positive", read_only=True, bound=60.0),
     Param("watchdog_missed_cycles", 100, "Realtime watchdog: consecutive ticks without a new "
           "command (the last one is reused meanwhile) before watchdog_reaction, >= 1. 100 = "
           "0.1 s at 1 kHz (libfranka: 20 on a real-time kernel): controller stalls of 20-60 ms "
           "were seen on a loaded 2-core machine, and a false stop needs a manual resume.",
-          "integer", read_only=True),
+          "integer", read_only=True, bound=10000),      # 10 s at 1 kHz
     Param("watchdog_reaction", "safe_stop", "What the watchdog does: safe_stop (brakes: "
           "gravity held, joints damped to rest and held there, until resume is set), hold "
           "(keep applying the last command, logged) or disabled (not 'off': YAML reads that as "
           "false).", "choice", choices=("safe_stop", "hold", "disabled"), read_only=True),
     Param("brake_damping", 30.0, "Safe stop: joint damping K_d of tau = G(q) - K_d q' - "
-          "K_p (q - q_stop) (N m s/rad).", "positive", read_only=True),
+          "K_p (q - q_stop) (N m s/rad).", "positive", read_only=True, bound=Bound.DAMPING),
     Param("brake_stiffness", 1000.0, "Safe stop: holding stiffness K_p about the position "
           "where braking began (N m/rad); 0 = damping only (contact forces then push the arm "
-          "away: ~70 mm on the ch. 3 plane).", "nonnegative", read_only=True),
+          "away: ~70 mm on the ch. 3 plane).", "nonnegative", read_only=True,
+          bound=Bound.STIFFNESS),
     Param("resume", False, "Set to true to leave a safe stop (the plant applies commands "
           "again and sets this back to false). Never happens by itself.", "bool"),
     Param("effort_limit", [0.0], "Joint effort limits (N m): one value for every joint or "
           "one per joint; 0 = the URDF's <limit effort>. Commands beyond are clipped.",
-          "nonnegative_vector", read_only=True),
+          "nonnegative_vector", read_only=True, bound=Bound.EFFORT),
+    # 1e9 N m/s (1e6 N m per 1 ms cycle): no limit in practice, which is how the
+    # comparisons with the offline loop (which has none) open it up; fjr_robust_adaptive's
+    # thesis runs need 1e5.
     Param("effort_rate_limit", 1000.0, "Torque-rate limit (N m/s) between consecutive "
           "commands (libfranka: 1000); commands beyond are clipped.", "positive",
-          read_only=True),
+          read_only=True, bound=1e9),
+    Param("command_handover_cycles", 50, "One commander at a time (issue 25): commands from "
+          "any other publisher on /joint_commands are refused (counted in commands_foreign) "
+          "until the commander has sent nothing for this many cycles (realtime: ticks; "
+          "lockstep: this many periods of wall time); then the next valid command's publisher "
+          "takes over. >= 1. 50 = 50 ms at 1 kHz: below the watchdog's 100, so a restarted "
+          "controller takes over before the safe stop; above the 20-60 ms stalls of a loaded "
+          "controller, so a stalled one is not displaced by a stray publisher.", "integer",
+          read_only=True, bound=10000),
 ]
 
 
@@ -134,6 +161,15 @@ SCENARIO_PARAMETER = Param("scenario", "compliant_plane", "Simulated scenario.",
 
 #: Publish times kept for matching commands to the states they answer.
 _RING = 64
+
+#: The most joints a command may name: a command longer than such a JointState (names of
+#: 63 characters, all three arrays filled, a 255-character frame_id: MAX_COMMAND_BYTES) is
+#: refused unread, whatever the plant's joints (the Panda has 9, the largest URDF here).
+MAX_COMMAND_JOINTS = 64
+MAX_COMMAND_BYTES = len(cdr.Writer(cdr.joint_state, frame_id="f" * 255,
+                                   name=["n" * 63] * MAX_COMMAND_JOINTS,
+                                   **dict.fromkeys(("position", "velocity", "effort"),
+                                                   MAX_COMMAND_JOINTS)).message())
 
 
 def plant_parameters(scenario: str) -> list[Param]:
@@ -200,12 +236,16 @@ class PlantNode(Node):
         scenario = declare(self, [SCENARIO_PARAMETER])
         specs, factory = SCENARIOS[scenario["scenario"]]
         self.settings = declare(self, NODE_PARAMETERS)
-        if self.settings["watchdog_missed_cycles"] < 1:
-            raise ParameterError("parameter watchdog_missed_cycles must be >= 1")
+        for name in ("watchdog_missed_cycles", "command_handover_cycles"):
+            if self.settings[name] < 1:
+                raise ParameterError(f"parameter {name} must be >= 1")
         self.plant = factory(declare(self, specs))
         police_changes(self, [SCENARIO_PARAMETER, *NODE_PARAMETERS, *specs], self._on_parameter)
         self.period = 1.0 / self.settings["rate_hz"]
         self.lockstep = self.settings["mode"] == "lockstep"
+        # Realtime: this process's threads run under SCHED_FIFO (spin_nodes; issue 25: a
+        # process starting beside the loop delayed ticks 100-470 ms on a loaded machine).
+        self.realtime_loop = not self.lockstep
         self.joint_names = list(self.plant.joint_names)
         self.command_names = tuple(self.plant.command_joints)
         self.plant.brake_damping = self.settings["brake_damping"]
@@ -245,6 +285,14 @@ class PlantNode(Node):
         self._velocity_limits = [(i, limit, self.joint_names[i])
                                  for i, limit in self.plant.velocity_limits()]
         self._resume_requested = False
+        # One commander at a time (issue 25): the GID of the publisher whose commands are
+        # followed (None until the first valid command) and when it was last heard (realtime:
+        # the tick count; lockstep: wall time).
+        self._commander: bytes | None = None
+        self._handover_cycles = self.settings["command_handover_cycles"]
+        self._ticks = 0
+        self._commander_tick = 0
+        self._commander_wall = 0.0
         self._warned: set[str] = set()
         self._started = False
         self._recorder_ready = not self.settings["wait_for_recorder"]
@@ -273,14 +321,26 @@ class PlantNode(Node):
                                  effort=n)
         self._q_out, self._v_out, self._e_out = (self._state.array(f) for f in
                                                  ("position", "velocity", "effort"))
-        self._wrench = cdr.Writer(cdr.wrench_stamped, frame_id="world")
+        # frame_id: the frame the plant measures its wrench in (a URDF sensor link, its base).
+        self._wrench = cdr.Writer(cdr.wrench_stamped,
+                                  frame_id=self.plant.wrench_frame)
         self._force_out = self._wrench.array("wrench")[:3]
         self._clock_out = cdr.Writer(cdr.clock)
         self._read_command = JointStateReader()
 
-        self.command_sub = self.create_subscription(
-            JointState, topics.JOINT_COMMANDS, quiet_on_shutdown(self, self._on_command), CONTROL_QOS,
-            raw=True)
+        # Commands with their publisher's GID (rclpy 7.1 hands none to Python: see
+        # sender_aware); without rcl's take at hand, a plain raw subscription that cannot
+        # tell publishers apart (one commander is then not enforced: warned).
+        on_command = quiet_on_shutdown(self, self._on_command)
+        if sender_aware.available():
+            self.command_sub = sender_aware.subscribe(self, JointState, topics.JOINT_COMMANDS,
+                                                      on_command, CONTROL_QOS, MAX_COMMAND_BYTES)
+        else:
+            self.get_logger().warn("rcl's take is not reachable through ctypes: publishers on "
+                                   f"{topics.JOINT_COMMANDS} cannot be told apart, every one "
+                                   "is obeyed")
+            self.command_sub = self.create_subscription(
+                JointState, topics.JOINT_COMMANDS, on_command, CONTROL_QOS, raw=True)
         if self.settings["wait_for_recorder"]:
             self.create_subscription(Bool, topics.RECORDER_READY, self._on_recorder_ready, READY_QOS)
         # Timers are made here and started later: EventsExecutor does not pick up timers
@@ -304,6 +364,11 @@ class PlantNode(Node):
             + f", reflexes at contact force > {self._max_force:g} N"
             + "".join(f", |{name}'| > {limit:g}" for _, limit, name in self._velocity_limits)
             + "; waiting for a controller")
+
+    def destroy_node(self) -> None:
+        if isinstance(self.command_sub, sender_aware.SenderAwareSubscription):
+            self.command_sub.destroy()     # not one of the node's subscriptions: freed here
+        super().destroy_node()
 
     # -- parameters -----------------------------------------------------------------
     def _on_parameter(self, name: str, value) -> None:
@@ -428,7 +493,71 @@ class PlantNode(Node):
                     f"{self.scenario})")
         return ""
 
-    def _on_command(self, data: bytes) -> None:
+    def _publisher_name(self, gid: bytes) -> str:
+        """``node 'name' (gid ...)`` of the publisher ``gid`` on /joint_commands, from the graph
+        (a query: only for the rare log lines)."""
+        gid_text = f"gid {gid.hex()}" if gid else "unknown gid"
+        try:
+            infos = self.get_publishers_info_by_topic(self.command_sub.topic_name)
+        except Exception:  # noqa: BLE001 - a log line's detail, never worth failing for
+            infos = []
+        for info in infos:
+            if gid and bytes(info.endpoint_gid) == gid:
+                return f"node '{info.node_namespace.rstrip('/')}/{info.node_name}' ({gid_text})"
+        return f"a publisher ({gid_text})"
+
+    def _commander_silence(self) -> int:
+        """Cycles since the commander's last valid command: ticks in realtime, periods of
+        wall time in lockstep (which has no ticks)."""
+        if self.lockstep:
+            return int((time.monotonic() - self._commander_wall) * self.settings["rate_hz"])
+        return self._ticks - self._commander_tick
+
+    def _from_another(self, gid: bytes) -> bool:
+        """True if a command of ``gid`` (not the commander) is refused unread: the commander
+        has not been silent for command_handover_cycles (counted; logged the first time)."""
+        if self._commander is None or self._commander_silence() >= self._handover_cycles:
+            return False
+        self.stats.commands_foreign += 1
+        if "foreign" not in self._warned:
+            self._warned.add("foreign")
+            self.get_logger().warn(
+                f"refused commands from {self._publisher_name(gid)} on "
+                f"{self.command_sub.topic_name}: the plant follows one commander at a time, "
+                f"{self._publisher_name(self._commander)}, until it has been silent for "
+                f"{self._handover_cycles} cycles (command_handover_cycles); counted in "
+                f"commands_foreign ({topics.PLANT_TIMING}), logged once")
+        return True
+
+    def _take_over(self, gid: bytes) -> None:
+        """``gid``'s valid command makes it the commander (the first, or after the silence)."""
+        previous, self._commander = self._commander, gid
+        if previous is None:
+            self.get_logger().info(f"commands from {self._publisher_name(gid)}")
+            return
+        self.stats.commander_handovers += 1
+        self.get_logger().warn(
+            f"handover: commands now from {self._publisher_name(gid)}; the previous commander "
+            f"({self._publisher_name(previous)}) was silent for {self._commander_silence()} "
+            f"cycles (command_handover_cycles {self._handover_cycles})")
+
+    def _refuse_oversized(self, length: int) -> None:
+        self.stats.commands_oversized += 1
+        if "oversized" not in self._warned:
+            self._warned.add("oversized")
+            self.get_logger().warn(
+                f"refused a {length}-byte command unread: more than {MAX_COMMAND_BYTES} bytes "
+                f"({MAX_COMMAND_JOINTS} joints' worth); counted in commands_oversized, "
+                "logged once")
+
+    def _on_command(self, data: bytes | None, gid: bytes = b"", length: int = 0) -> None:
+        """A serialized command from the publisher ``gid`` (its GID; b"" if unknown);
+        ``data`` None: a message of ``length`` bytes, too long to be read."""
+        if data is None or len(data) > MAX_COMMAND_BYTES:
+            self._refuse_oversized(length if data is None else len(data))
+            return
+        if gid != self._commander and self._from_another(gid):
+            return
         msg = self._read_command(data)
         if msg is None:
             self._refuse("not a readable JointState")
@@ -447,6 +576,12 @@ class PlantNode(Node):
             self._refuse("non-finite value")
             return
         self.stats.commands_clipped = self.limiter.clipped
+        if gid != self._commander:
+            self._take_over(gid)
+        if self.lockstep:
+            self._commander_wall = time.monotonic()
+        else:
+            self._commander_tick = self._ticks
         key = msg.sec * 1_000_000_000 + msg.nanosec
         sent = self._published_at(key)
         if sent is not None:
@@ -559,6 +694,7 @@ class PlantNode(Node):
             return
         now = time.monotonic()
         elapsed, self._last_tick = now - self._last_tick, now
+        self._ticks += 1
         fresh = self.command_stamp is not None and self.command_stamp == self.state_stamp
         if self._resume_requested:
             self._resume()

@@ -7,6 +7,7 @@ Domain ids come from :func:`ros_probe.next_domain`, which holds them machine-wid
 import os
 
 import pytest
+from plant_harness import make_node  # noqa: F401 - a fixture for every test module
 from ros_probe import domains_taken, next_domain, release_domains
 
 from cr_control.core.ros_env import isolated_env, use_node_dds_profile

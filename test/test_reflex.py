@@ -10,14 +10,10 @@ lockstep, which diverges (6600 N by 60 s without the reflex) and must end in a r
 """
 
 import math
-import os
-import time
 
 import numpy as np
 import pytest
-import rclpy
-from rclpy.context import Context
-from rclpy.parameter import Parameter
+from plant_harness import PERIOD, tick
 from rclpy.serialization import serialize_message
 from ros_probe import next_domain
 from sensor_msgs.msg import JointState
@@ -34,59 +30,9 @@ from cr_sim.plant_node import PlantNode
 from cr_sim.plants.dynamic_constraint import equilibrium
 from cr_sim.plants.registry import SCENARIOS, make_plant
 
-PERIOD = 1e-3
 #: The thesis scenarios and their force reflex defaults (N) with the task force behind each.
 DEFAULT_MAX_FORCE = {"compliant_plane": 50.0, "circular_surface": 50.0, "moving_object": 20.0,
                      "dynamic_constraint": 5.0, "cmmsd": 10.0, "flexible_joint_surface": 20.0}
-
-
-class Log:
-    """Stands in for the node's logger: keeps every line by level."""
-
-    def __init__(self):
-        self.lines: list[tuple[str, str]] = []
-
-    def _add(self, level, message, **_):
-        self.lines.append((level, message))
-
-    def info(self, message, **kw):
-        self._add("info", message)
-
-    def warn(self, message, **kw):
-        self._add("warn", message)
-
-    def error(self, message, **kw):
-        self._add("error", message)
-
-    def count(self, text: str) -> int:
-        return sum(text in message for _, message in self.lines)
-
-
-@pytest.fixture
-def make_node():
-    made = []
-
-    def make(**parameters) -> PlantNode:
-        context = Context()
-        rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
-        node = PlantNode(context=context, parameter_overrides=[
-            Parameter(name, value=value) for name, value in parameters.items()])
-        node.log = Log()
-        node.get_logger = lambda: node.log
-        node._started = True
-        made.append((node, context))
-        return node
-
-    yield make
-    for node, context in made:
-        node.destroy_node()
-        rclpy.shutdown(context=context)
-
-
-def tick(node: PlantNode, periods: int = 1) -> None:
-    """Run the realtime node's tick as if ``periods`` periods of wall time had passed."""
-    node._last_tick = time.monotonic() - periods * PERIOD
-    node._tick()
 
 
 def answer(node: PlantNode, **values) -> None:

@@ -86,7 +86,11 @@ def labelled_writer(fields: Sequence[str]) -> cdr.Writer:
 #: one each means another participant is on the loop), ``window_max_missed_run`` (longest
 #: run of consecutive ticks without a new command in the window); issue 20:
 #: ``safe_stop_reason`` (why the safe stop is engaged: 0 none, 1 watchdog, 2 contact force
-#: reflex, 3 joint velocity reflex; ``safe_stop`` is 1 for each of them).
+#: reflex, 3 joint velocity reflex; ``safe_stop`` is 1 for each of them); issue 25 (one
+#: commander at a time, run totals): ``commands_foreign`` (commands refused unread because
+#: another publisher is the commander), ``commands_oversized`` (commands refused unread for
+#: their size) and ``commander_handovers`` (times another publisher took over after the
+#: commander's silence; the first commander is not counted).
 PLANT_TIMING_FIELDS = [
     "stamp",
     "rate_hz",
@@ -110,6 +114,9 @@ PLANT_TIMING_FIELDS = [
     "state_publishers",
     "window_max_missed_run",
     "safe_stop_reason",
+    "commands_foreign",
+    "commands_oversized",
+    "commander_handovers",
 ]
 
 #: Fields every controller publishes on its reference topic (task space, SI units).
@@ -132,8 +139,16 @@ STATUS_FIELDS = [
 #: Fields the controller node appends after every controller's status fields (its own
 #: timing, not the control law's): ``in_time_us`` from callback entry to the start of
 #: the control computation, ``out_time_us`` building and publishing the previous
-#: cycle's command, reference and status. Not in the offline loop (no messages there).
-NODE_STATUS_FIELDS = ["in_time_us", "out_time_us"]
+#: cycle's command, reference and status. Issue 25: ``commands_stopped`` (1 while the
+#: law's output has failed too long and no command is published), and run totals:
+#: ``states_foreign`` (states from another /joint_states publisher than the one followed,
+#: ignored), ``source_handovers`` (times another publisher was followed after the
+#: followed one's silence; the first is not counted), ``inputs_oversized`` (states,
+#: wrenches and plant sensor messages dropped unread for their size) and
+#: ``sensor_faults`` (wrenches above max_sensor_force or not finite: the last sane one
+#: used). Not in the offline loop (no messages there).
+NODE_STATUS_FIELDS = ["in_time_us", "out_time_us", "commands_stopped", "states_foreign",
+                      "source_handovers", "inputs_oversized", "sensor_faults"]
 
 #: The plant's command interface, ``std_msgs/String`` "effort" or "position", latched
 #: (RELIABLE, TRANSIENT_LOCAL, depth 1; published once at start): a controller node whose

@@ -12,7 +12,8 @@ lockstep`` sets it), the node waits every 250 cycles until the readers of its to
 recorder) acknowledged them, so a recording loses nothing (:mod:`cr_control.nodes.lockstep`).
 
 Hot path (issue 6): the loop's messages are taken and published serialized
-(``raw=True`` subscriptions, ``publish(bytes)``): joint states, wrenches and plant
+(``raw=True`` subscriptions, the joint states with their sender through
+:mod:`cr_control.nodes.sender_aware`, ``publish(bytes)``): joint states, wrenches and plant
 sensors are read straight from their CDR bytes (:mod:`cr_control.nodes.raw_messages`),
 and the command, reference and status are built once as CDR bytes whose numbers are
 refilled in place (:class:`cr_control.core.cdr.Writer`): no ROS message object is made
@@ -29,6 +30,23 @@ efforts but the plant takes positions (scenario dynamic_constraint): refusing to
 it``) and exits with code 1. While a plant advertises but its value has not arrived yet,
 states are not answered (a lockstep plant sends them again); a plant that advertises
 nothing (another robot, a test probe) is driven as before.
+
+Guards (issue 25; counted in the status, :data:`cr_control.core.topics.NODE_STATUS_FIELDS`):
+
+- One source of states: /joint_states is taken with each message's publisher GID
+  (:mod:`cr_control.nodes.sender_aware`; rclpy 7.1.6 gives Python none). The node follows
+  the first publisher whose state it answers; states of any other are ignored unread
+  (``states_foreign``, one warning) until the followed one has been silent for
+  SOURCE_SILENCE_S (a restarted plant, a switched driver): the next publisher is then
+  followed (``source_handovers``, one info line).
+- Size: a JointState longer than a 64-joint one (``raw_messages.joint_state_max_bytes``),
+  or of another length than the last state and saying it has more than 64 names, and a
+  wrench or plant sensor message beyond its bound, is dropped unread (``inputs_oversized``).
+- Sensor sanity: a wrench whose force is above ``max_sensor_force`` or not finite is a
+  sensor fault: the last sane force stays in use (``sensor_faults``, one warning).
+- A failing law: while :attr:`Controller.commanding` is False (its output failed for more
+  than ``max_bad_cycles`` cycles in a row) no command is published, so the plant's
+  watchdog brakes; ``commands_stopped`` is 1.
 """
 
 from __future__ import annotations
@@ -48,13 +66,19 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 
 from cr_control.core import cdr, topics
+from cr_control.nodes import sender_aware
 from cr_control.nodes.lockstep import ReaderPacer
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS, TARGET_QOS
 from cr_control.nodes.raw_messages import (
+    ARRAY_MAX_BYTES,
+    MAX_JOINTS,
+    WRENCH_MAX_BYTES,
     ArrayReader,
     JointStateFields,
     JointStateReader,
     WrenchReader,
+    joint_state_max_bytes,
+    joint_state_names,
 )
 from cr_control.nodes.ros_parameters import ParameterError, declare, police_changes
 from cr_control.nodes.spin import RCLError, quiet_on_shutdown, spin_nodes, start_nodes
@@ -72,6 +96,15 @@ INTERFACE_NOUNS = {"effort": "efforts", "position": "positions"}
 SCENARIO_WAIT_S = 1.0
 #: A node with no plant interface yet looks for an advertising plant at most this often (s).
 ADVERTISED_CHECK_S = 0.5
+#: Another /joint_states publisher is followed only after the followed one has been silent
+#: this long (s; 2000 cycles at 1 kHz): beyond the plant's watchdog (100 cycles) and its
+#: lockstep resend (1 s), so a plant still alive behind a flood of foreign states has braked
+#: or sent its state again first; a restarted plant takes longer to come back anyway.
+SOURCE_SILENCE_S = 2.0
+#: Integer parameters that must be >= 1.
+COUNT_PARAMETERS = ("diagnostics_every", "max_bad_cycles")
+#: A fault of the messages in (unreadable, oversized, ...) is logged at most this often (s).
+LOG_EVERY_S = 5.0
 
 
 def wait_for_acks(node: Node, timeout_s: float = 2.0) -> None:
@@ -92,11 +125,14 @@ class ControllerNode(Node):
         given = {name: p.value for name, p in self._parameter_overrides.items()}  # noqa: SLF001
         specs = cls.parameters(given)      # a task-space scheme sizes its gains to the robot
         values = declare(self, specs)
-        if values["diagnostics_every"] < 1:
-            raise ParameterError("parameter diagnostics_every must be >= 1")
+        for name in COUNT_PARAMETERS:
+            if values[name] < 1:
+                raise ParameterError(f"parameter {name} must be >= 1")
         self.controller = cls(values)
         self.controller.warm_up()   # load the compiled kernels now, not in the first cycle
         self.controller.log_warning = self.get_logger().warn   # Controller rate-limits its own
+        self.controller.log_error = self.get_logger().error
+        self.controller.log_info = self.get_logger().info
         self.add_on_set_parameters_callback(self._check_counts)
         police_changes(self, specs, self._apply, self.controller.check_parameter)
         self.joint_names = list(self.controller.values["joint_names"])        # commanded
@@ -109,6 +145,16 @@ class ControllerNode(Node):
         self.force = np.zeros(3)
         self._last_stamp: tuple[int, int] | None = None
         self._answered = False
+        # Guards (module docstring): counts, the followed publisher, size bounds.
+        self.states_foreign = self.source_handovers = self.inputs_oversized = 0
+        self.sensor_faults = 0
+        self.source: bytes | None = None      # GID of the /joint_states publisher followed
+        self._source_seen = -np.inf           # perf_counter of its last message
+        self._max_joints = max(MAX_JOINTS, len(self.controller.state_joint_names))
+        self._max_state_bytes = joint_state_max_bytes(self._max_joints)
+        self._state_size = -1                 # length of the last state read
+        self._sensor_fault = False            # the last wrench was a sensor fault
+        self._logged_at: dict[str, float] = {}
         # Command interface check: "unknown" until the plant says, then "ok" or "refused".
         self.scheme = scheme
         self.command_interface = self.controller.command_interface
@@ -158,9 +204,7 @@ class ControllerNode(Node):
         if self._sensor_fields:
             self.create_subscription(Float64MultiArray, topics.PLANT_SENSORS,
                                      self._on_plant_sensors, CONTROL_QOS, raw=True)
-        self.create_subscription(JointState, topics.JOINT_STATES,
-                                 quiet_on_shutdown(self, self._on_joint_state), CONTROL_QOS,
-                                 raw=True)
+        self._subscribe_states()
         if hasattr(self.controller, "set_target_pose"):    # task-space schemes: live targets
             self._base_link = self.controller.values["base_link"]
             self.create_subscription(PoseStamped, f"~/{topics.TARGET_POSE_SUFFIX}",
@@ -175,8 +219,8 @@ class ControllerNode(Node):
     @staticmethod
     def _check_counts(params) -> SetParametersResult:
         for p in params:
-            if p.name == "diagnostics_every" and isinstance(p.value, int) and p.value < 1:
-                return SetParametersResult(successful=False, reason="diagnostics_every must be >= 1")
+            if p.name in COUNT_PARAMETERS and isinstance(p.value, int) and p.value < 1:
+                return SetParametersResult(successful=False, reason=f"{p.name} must be >= 1")
         return SetParametersResult(successful=True)
 
     def _apply(self, name: str, value) -> None:
@@ -232,20 +276,59 @@ class ControllerNode(Node):
         return self._advertised
 
     # -- messages in (serialized: raw subscriptions) ------------------------------------
+    def _log_limited(self, key: str, severity: str, message: str) -> None:
+        """Log ``message`` at most every LOG_EVERY_S per ``key``. For faults that can come
+        with every message: rclpy's logger (its throttle too) reads the caller's frame and
+        source file on every call, ~0.5 ms here; this check costs a dict lookup."""
+        now = time.monotonic()
+        if now - self._logged_at.get(key, -np.inf) < LOG_EVERY_S:
+            return
+        self._logged_at[key] = now
+        if severity == "error":
+            self.get_logger().error(message)
+        else:
+            self.get_logger().warn(message)
+
     def _unreadable(self, topic: str) -> None:
-        self.get_logger().error(f"a message on {topic} could not be read: ignored",
-                                throttle_duration_sec=5.0)
+        self._log_limited(f"unreadable {topic}", "error",
+                          f"a message on {topic} could not be read: ignored")
+
+    def _oversized(self, topic: str, size: int, why: str) -> None:
+        """Count a message dropped unread for its size; log (rate-limited)."""
+        self.inputs_oversized += 1
+        self._log_limited(f"oversized {topic}", "error",
+                          f"a message of {size} bytes on {topic} ({why}) dropped unread; "
+                          "counted in inputs_oversized")
 
     def _on_wrench(self, data: bytes) -> None:
+        if len(data) > WRENCH_MAX_BYTES:
+            self._oversized(topics.WRENCH, len(data), f"a WrenchStamped has at most "
+                            f"{WRENCH_MAX_BYTES}")
+            return
         wrench = self._read_wrench(data)
         if wrench is None:
             self._unreadable(topics.WRENCH)
             return
-        self.force[:] = wrench.force
+        fx, fy, fz = wrench.force
+        limit = self.controller.values["max_sensor_force"]
+        if fx * fx + fy * fy + fz * fz <= limit * limit:     # False for NaN, inf, overflow
+            self.force[:] = wrench.force
+            self._sensor_fault = False
+            return
+        self.sensor_faults += 1
+        if not self._sensor_fault:
+            self._sensor_fault = True
+            self._log_limited("sensor fault", "warn",
+                              f"wrench force {list(wrench.force)} N: |f| above max_sensor_force "
+                              f"{limit:g} N or not finite: a sensor fault; the last sane force "
+                              f"{self.force.tolist()} N stays in use (counted in sensor_faults)")
 
     def _on_plant_sensors(self, data: bytes) -> None:
         """The plant's extra measurements the law reads (``plant_sensor_fields``), found by
         label; published just before the joint state they belong to."""
+        if len(data) > ARRAY_MAX_BYTES:
+            self._oversized(topics.PLANT_SENSORS, len(data), f"at most {ARRAY_MAX_BYTES} read")
+            return
         sensors = self._read_sensors(data)
         if sensors is None:
             self._unreadable(topics.PLANT_SENSORS)
@@ -306,8 +389,8 @@ class ControllerNode(Node):
                 order = None
             self._index_cache = (names, order)
         if self._index_cache[1] is None:
-            self.get_logger().error(f"joint state lacks some of {list(self.state_joint_names)}: "
-                                    f"{list(names)}", throttle_duration_sec=5.0)
+            self._log_limited("joints", "error", f"joint state lacks some of "
+                              f"{list(self.state_joint_names)}: {list(names)}")
         return self._index_cache[1]
 
     def _joint_arrays(self, state: JointStateFields) -> tuple[np.ndarray, np.ndarray]:
@@ -323,25 +406,89 @@ class ControllerNode(Node):
             position, velocity = [position[i] for i in order], [velocity[i] for i in order]
         return np.array(position), np.array(velocity)
 
-    def _on_joint_state(self, data: bytes) -> None:
+    def _subscribe_states(self) -> None:
+        """/joint_states with each message's publisher GID (:mod:`sender_aware`), or, where
+        rcl cannot be reached, a plain raw subscription that cannot tell publishers apart."""
+        callback = quiet_on_shutdown(self, self._on_joint_state)
+        if sender_aware.available():
+            self._state_sub = sender_aware.subscribe(self, JointState, topics.JOINT_STATES,
+                                                     callback, CONTROL_QOS, self._max_state_bytes)
+            return
+        self._state_sub = self.create_subscription(JointState, topics.JOINT_STATES, callback,
+                                                   CONTROL_QOS, raw=True)
+        self.get_logger().warn(f"rcl's take is out of reach here: states of every publisher on "
+                               f"{topics.JOINT_STATES} are answered (they cannot be told apart)")
+
+    def _state_refused(self, data: bytes | None, length: int | None) -> bool:
+        """True (counted, logged) for a state dropped unread for its size (module docstring):
+        longer than ``_max_state_bytes`` (``data`` None: not even copied), or of another
+        length than the last state read and saying it has more than ``_max_joints`` names."""
+        size = len(data) if data is not None else length or 0
+        if data is not None and size <= self._max_state_bytes:
+            if size == self._state_size:
+                return False
+            names = joint_state_names(data)
+            if names is None or names <= self._max_joints:
+                return False
+            why = f"{names} joint names, more than {self._max_joints}"
+        else:
+            why = f"a JointState of {self._max_joints} joints has at most {self._max_state_bytes}"
+        self._oversized(topics.JOINT_STATES, size, why)
+        return True
+
+    def _foreign(self, sender: bytes) -> None:
+        """Count a state of another publisher than the one followed; warn on the first."""
+        self.states_foreign += 1
+        if self.states_foreign == 1:
+            self.get_logger().warn(
+                f"states from another publisher on {topics.JOINT_STATES} (GID {sender.hex()}) "
+                f"than the one followed ({self.source.hex()}): ignored, counted in "
+                f"states_foreign; another is followed only after {SOURCE_SILENCE_S:g} s without "
+                "a state from it")
+
+    def _follow(self, sender: bytes, now: float) -> None:
+        """Follow ``sender`` from now on (the first, or one after the followed one's silence)."""
+        if self.source is not None:
+            self.source_handovers += 1
+            self.get_logger().info(
+                f"{topics.JOINT_STATES}: no state from the publisher followed ({self.source.hex()}) "
+                f"for {now - self._source_seen:.3f} s: following {sender.hex()} from now on")
+        self.source = sender
+
+    def _on_joint_state(self, data: bytes | None, sender: bytes | None = None,
+                        length: int | None = None) -> None:
+        """One state (serialized), from publisher ``sender`` (its GID; None if unknown);
+        ``data`` None for a message of ``length`` bytes too long to be copied here."""
         entry = time.perf_counter()
+        if (data is None or len(data) != self._state_size) and self._state_refused(data, length):
+            return
+        new_source = sender is not None and sender != self.source
+        if new_source and entry - self._source_seen <= SOURCE_SILENCE_S:
+            self._foreign(sender)
+            return
         if self._interface != "ok" and (self._interface == "refused" or self._plant_advertises()):
             return      # refused, or the plant's interface is on its way: no command
         state = self._read_state(data)
         if state is None:
             self._unreadable(topics.JOINT_STATES)
             return
+        self._state_size = len(data)
+        if new_source:
+            self._follow(sender, entry)
+        self._source_seen = entry
         stamp = (state.sec, state.nanosec)
         if stamp == self._last_stamp and self._answered:
-            self.command_pub.publish(self._command_bytes)  # a repeated state: same answer
+            if self.controller.commanding:
+                self.command_pub.publish(self._command_bytes)  # a repeated state: same answer
             return
         self._last_stamp = stamp
         position, velocity = self._joint_arrays(state)
         if not self._sensors_seen:
-            self.get_logger().warn(
+            self._log_limited(
+                "sensors", "warn",
                 f"{self.scheme} reads {list(self._sensor_fields)} from {topics.PLANT_SENSORS} "
                 "but none has arrived: those inputs are NaN (the law holds its command, or "
-                "uses its fallback where it has one)", throttle_duration_sec=5.0)
+                "uses its fallback where it has one)")
         t = stamp[0] + stamp[1] * 1e-9
         compute_start = time.perf_counter()
         out = self.controller.step(t, position, velocity, self.force)
@@ -351,20 +498,23 @@ class ControllerNode(Node):
         self._command.set_stamp(*stamp)
         self._command_out[:] = out.command
         self._command_bytes = self._command.message()
-        self.command_pub.publish(self._command_bytes)
+        if self.controller.commanding:      # else the plant's watchdog brakes (module docstring)
+            self.command_pub.publish(self._command_bytes)
+            if self.forward_pub is not None:
+                self._forward_out[:] = out.command
+                self.forward_pub.publish(self._forward.message())
         self._answered = True
-        if self.forward_pub is not None:
-            self._forward_out[:] = out.command
-            self.forward_pub.publish(self._forward.message())
         self._cycle += 1
         if self._cycle >= self._diagnostics_every:
             self._cycle = 0
             reference, status = self._reference_out, self._status_out
             reference[0] = status[0] = t
             reference[1:] = out.reference
-            status[1:self._n_status] = out.status
-            status[-2] = (compute_start - entry) * 1e6
-            status[-1] = self._out_time_us
+            n = self._n_status
+            status[1:n] = out.status
+            status[n:] = ((compute_start - entry) * 1e6, self._out_time_us,
+                          0.0 if self.controller.commanding else 1.0, self.states_foreign,
+                          self.source_handovers, self.inputs_oversized, self.sensor_faults)
             self.reference_pub.publish(self._reference.message())
             self.status_pub.publish(self._status.message())
         self._out_time_us = (time.perf_counter() - out_start) * 1e6

@@ -3,10 +3,16 @@ their callbacks the serialized message, read here by :mod:`cr_control.core.cdr` 
 ``struct`` call instead of building ROS message objects: ~2 µs instead of ~23 µs per
 JointState, ~1.5 µs instead of ~46 µs per WrenchStamped). Bytes that are not plain CDR
 (another encapsulation) go through rclpy's own deserialization, so any sender is read.
+
+Size bounds (issue 25: a 10 MB JointState of 640 000 names took the reader 1.8 s): a node
+compares a message's length with the largest message it reads (:func:`joint_state_max_bytes`,
+:data:`WRENCH_MAX_BYTES`, :data:`ARRAY_MAX_BYTES`) before reading it, and drops a longer
+one unread.
 """
 
 from __future__ import annotations
 
+import struct
 from typing import Any, NamedTuple
 
 from geometry_msgs.msg import WrenchStamped
@@ -15,6 +21,48 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from cr_control.core import cdr
+
+#: The largest JointState a controller reads has this many joints (more than any arm here,
+#: its gripper included, and more than the state of two arms)...
+MAX_JOINTS = 64
+#: ... with joint names and frame_id of at most this many bytes each (ROS names of 255
+#: characters and the NUL).
+MAX_NAME_BYTES = 256
+
+
+def _string_bytes(name_bytes: int) -> int:
+    return 4 + name_bytes + 3            # length, bytes (NUL included), padding to 4
+
+
+def joint_state_max_bytes(joints: int = MAX_JOINTS, name_bytes: int = MAX_NAME_BYTES) -> int:
+    """Bytes of the largest plain-CDR sensor_msgs/JointState of ``joints`` joints whose names
+    and frame_id have ``name_bytes`` bytes each, padding included (18 675 bytes for the
+    defaults)."""
+    doubles = 4 + 4 + 8 * joints         # count, padding to 8, values
+    return (cdr.HEADER + 8 + _string_bytes(name_bytes) + 4 + joints * _string_bytes(name_bytes)
+            + 3 * doubles + 4)
+
+
+def joint_state_names(data: bytes) -> int | None:
+    """How many names a plain-CDR JointState says it has (two uint32 read: frame_id's length
+    and the name count), without reading the message; None if ``data`` cannot say (too
+    short, or not plain CDR)."""
+    endian = cdr.ENDIAN.get(bytes(data[:2]))
+    if endian is None or len(data) < cdr.HEADER + 12:
+        return None
+    frame_id = struct.unpack_from(endian + "I", data, cdr.HEADER + 8)[0]
+    at = cdr.HEADER + 12 + frame_id
+    at += -(at - cdr.HEADER) % 4
+    if at + 4 > len(data):
+        return None
+    return struct.unpack_from(endian + "I", data, at)[0]
+
+
+#: The largest geometry_msgs/WrenchStamped (frame_id of MAX_NAME_BYTES).
+WRENCH_MAX_BYTES = cdr.HEADER + 8 + _string_bytes(MAX_NAME_BYTES) + 4 + 6 * 8 + 4
+#: The largest std_msgs/Float64MultiArray a node reads (the plant's labelled sensors: a
+#: label of every field name and a few values): 64 KiB.
+ARRAY_MAX_BYTES = 65536
 
 
 class JointStateFields(NamedTuple):
