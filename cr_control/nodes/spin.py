@@ -19,6 +19,16 @@ callbacks; callbacks that publish are also wrapped with :func:`quiet_on_shutdown
 shutdown coming from elsewhere (SIGTERM, ``rclpy.shutdown()``). On the way out each
 process waits (at most ``LAST_MESSAGES_TIMEOUT_S``) until its readers acknowledged its
 last messages, so a recorder a little behind still gets them.
+
+Ctrl-C ends a node within 2 s (issue 25: a plant under parameter traffic once took over
+6 s): the loop waits in slices of ``SPIN_SLICE_S`` (it waited 1 s, and a node with
+nothing to do noticed the signal only then), and after the signal every wait for
+readers, also one already under way (the plant's at the end of its run, 2 s; a lockstep
+pacer's, 10 s), ends ``INTERRUPTED_WAIT_S`` after it (before: up to 2 s in the callback,
+then up to 2 s more on the way out); a watchdog thread ends the process
+``EXIT_DEADLINE_S`` after the signal if the middleware's teardown hangs (a Fast DDS
+participant-deletion hang, 1 in ~100 process stops under load: :func:`_exit_if_stuck`).
+test/test_sigint.py stops nodes under parameter traffic and holds them to it.
 """
 
 from __future__ import annotations
@@ -45,8 +55,10 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.task import Future
 
+from cr_control.core import ros_yaml
 from cr_control.core.parameters import ParameterError
 from cr_control.core.ros_env import use_node_dds_profile
+from cr_control.nodes import realtime_priority
 
 #: rclpy's error for failures in rcl (a bad params file at init, a publish after shutdown).
 RCLError = _rclpy.RCLError
@@ -81,9 +93,38 @@ def _held_stderr() -> Iterator[list[bytes]]:
             held.append(tmp.read())
 
 
+def params_files(argv: Sequence[str]) -> list[str]:
+    """The files given with ``--params-file`` in the ``--ros-args`` parts of ``argv``."""
+    files, ros_args = [], False
+    for i, arg in enumerate(argv):
+        if arg == "--ros-args":
+            ros_args = True
+        elif arg == "--":
+            ros_args = False
+        elif ros_args and arg == "--params-file" and i + 1 < len(argv):
+            files.append(argv[i + 1])
+    return files
+
+
+def refuse_empty_params_files(label: str, argv: Sequence[str]) -> bool:
+    """True, after printing ``<label>: refused to start: params file ... is empty ...``, if a
+    ``--params-file`` of ``argv`` is empty (nothing, only comments, ``{}``, ``null``): rcl
+    takes such a file without a word, and a truncated or mistyped file would go unnoticed.
+    Call it before ``rclpy.init``."""
+    for path in params_files(argv):
+        if ros_yaml.empty_params_file(path):
+            print(f"{label}: refused to start: params file {path} is empty, no node's parameters "
+                  f"(expected '{ros_yaml.PARAMS_FILE_FORM}')", file=sys.stderr)
+            return True
+    return False
+
+
 def start_nodes(label: str, argv: list[str], make: Callable[[], list[Node]]) -> list[Node] | None:
-    """``rclpy.init(argv)`` and ``make()`` the nodes; on a refused start print
-    ``<label>: refused to start: <reason>`` on stderr and return None."""
+    """``rclpy.init(argv)`` and ``make()`` the nodes; on a refused start (also an empty
+    params file: :func:`refuse_empty_params_files`) print ``<label>: refused to start:
+    <reason>`` on stderr and return None."""
+    if refuse_empty_params_files(label, argv):
+        return None
     use_node_dds_profile()   # before init: Fast DDS reads its profile once per process
     try:
         with _held_stderr() as held:
@@ -125,37 +166,112 @@ def quiet_on_shutdown(node: Node, callback: Callable[..., Any]) -> Callable[...,
     return guarded
 
 
-def _stop_on_first_interrupt(until: Future) -> Callable[[int, Any], None]:
-    """A SIGINT handler that ends the spin loop by completing ``until`` (no exception can
-    then surface inside a callback); a second Ctrl-C interrupts as usual."""
+#: Monotonic time the first SIGINT of the current :func:`spin_nodes` was handled (None: none).
+_interrupted_at: float | None = None
 
-    def handler(signum: int, frame: Any) -> None:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-        if not until.done():
-            until.set_result(None)
-
-    return handler
-
+#: The spin loop waits for events in slices this long: a SIGINT that comes while nothing
+#: runs (a controller whose plant has stopped) ends the loop within this time (s).
+SPIN_SLICE_S = 0.1
 
 #: On the way out, a node waits at most this long for its readers to acknowledge its
 #: last messages (a recorder a little behind still gets them).
 LAST_MESSAGES_TIMEOUT_S = 2.0
 
+#: After a SIGINT, waits for readers (:func:`wait_for_readers`, also one already under
+#: way: the plant's at the end of its run, a lockstep pacer's) end at most this long after
+#: the signal was handled, so that the process is gone within 2 s of Ctrl-C: healthy
+#: readers acknowledge within ~10 ms (heartbeats every 10 ms, fastdds_profile.xml);
+#: a reader that does not acknowledge in 0.5 s is stopping or stalled itself.
+INTERRUPTED_WAIT_S = 0.5
+
+#: :func:`wait_for_readers` waits in slices this long, so that a SIGINT can cut it short.
+_WAIT_SLICE_S = 0.05
+
+#: After Ctrl-C the process is gone at most this long after the signal, also when the
+#: middleware's teardown hangs (see :func:`_exit_if_stuck`); normally it is done ~0.6 s
+#: after the signal (wait for readers at most 0.5 s, nodes destroyed in 10-60 ms).
+EXIT_DEADLINE_S = 1.2
+
+#: At an end without Ctrl-C, the teardown after the wait for readers gets this long.
+TEARDOWN_TIMEOUT_S = 1.0
+
+
+def _exit_if_stuck(torn_down: threading.Event, deadline: float, names: str) -> None:
+    """Watchdog thread of :func:`spin_nodes`' teardown: end the process (status 0, the
+    nodes' status on Ctrl-C, after one line on stderr) if the teardown is not done by
+    ``deadline``, or EXIT_DEADLINE_S after a SIGINT, whichever comes first.
+
+    Why (issue 25, a plant that took over 6 s to exit): Fast DDS 2.14 can hang for good
+    in rmw_destroy_node, when the last node of the process deletes its DDS participant:
+    DomainParticipant::set_listener(nullptr) waits for the participant listener's
+    callbacks in progress and spins holding the listener mutex, while a discovery
+    callback about a peer that is leaving at the same moment (a session stop: every
+    process stops at once; cr_param processes coming and going) waits for that mutex.
+    Seen in about 1 of 80 process stops on a loaded 2-core machine (gdb: main thread in
+    DomainParticipant::set_listener under destroy_participant, a dds.udp thread blocked in
+    MyRTPSParticipantListener::onWriterDiscovery / onParticipantDiscovery). rclpy releases
+    the GIL around rcl_node_fini, so this Python thread still runs. Peers then see this
+    participant go only when its lease expires; its endpoints are gone already."""
+    with suppress(OSError, AttributeError):       # the loop's threads may run SCHED_FIFO
+        if os.sched_getscheduler(0) == os.SCHED_FIFO:   # and hold every CPU: be ahead of them
+            priority = os.sched_getparam(0).sched_priority
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(min(priority + 1, 99)))
+    while not torn_down.wait(0.05):
+        now = time.monotonic()
+        if now < deadline and (_interrupted_at is None or now < _interrupted_at + EXIT_DEADLINE_S):
+            continue
+        with suppress(Exception):
+            sys.stdout.flush()
+            since = ("in time" if _interrupted_at is None else
+                     f"{now - _interrupted_at:.1f} s after Ctrl-C")
+            sys.stderr.write(f"{names}: the middleware's teardown did not finish {since} (a known "
+                             "Fast DDS hang when a peer leaves at the same moment): exiting without it\n")
+            sys.stderr.flush()
+        os._exit(0)
+
+
+def _on_first_interrupt(signum: int, frame: Any) -> None:
+    """SIGINT handler of :func:`spin_nodes`: note the time; the spin loop, which waits in
+    slices of SPIN_SLICE_S, then ends between callbacks (no exception can surface inside
+    a callback). A second Ctrl-C interrupts as usual.
+
+    It only notes the time (it used to complete the loop's future): a Python signal
+    handler runs in the main thread between any two bytecodes, also while that thread
+    holds the future's non-reentrant lock in add_done_callback/remove_done_callback,
+    which EventsExecutor calls on every slice; set_result there would wait for ever."""
+    global _interrupted_at
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    if _interrupted_at is None:
+        _interrupted_at = time.monotonic()
+
 
 def wait_for_readers(publishers: Sequence[Publisher], timeout_s: float) -> bool:
     """Wait until every reader acknowledged what ``publishers`` sent, at most ``timeout_s``
-    in all; False if some had not by then (a destroyed publisher counts as done)."""
+    in all; False if some had not by then (a destroyed publisher counts as done).
+
+    After a SIGINT the wait ends at most INTERRUPTED_WAIT_S after the signal, and the
+    result is True: the process is being stopped, a reader that did not acknowledge by
+    then is not to be given up on as dead (lockstep.ReaderPacer would)."""
     deadline = time.monotonic() + timeout_s
     acked = True
     for publisher in publishers:
-        left = max(0.0, deadline - time.monotonic())
-        with suppress(RCLError, RuntimeError):
-            acked = publisher.wait_for_all_acked(Duration(seconds=left)) and acked
-    return acked
+        while True:
+            end = deadline if _interrupted_at is None else min(deadline, _interrupted_at + INTERRUPTED_WAIT_S)
+            left = end - time.monotonic()
+            try:
+                if publisher.wait_for_all_acked(Duration(seconds=max(0.0, min(left, _WAIT_SLICE_S)))):
+                    break
+            except (RCLError, RuntimeError):
+                break                       # destroyed meanwhile: nothing left to wait for
+            if left <= _WAIT_SLICE_S:
+                acked = False
+                break
+    return acked or _interrupted_at is not None
 
 
 def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
     """Spin ``nodes`` on one EventsExecutor until Ctrl-C, shutdown or ``until`` completes."""
+    global _interrupted_at
     # Long-lived nodes allocate little garbage that cycles; keep the collector from
     # stalling the loop by freezing start-up objects out of its generations.
     gc.collect()
@@ -163,14 +279,16 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
     executor = EventsExecutor()
     for node in nodes:
         executor.add_node(node)
+    realtime_priority.apply(nodes)   # the real-time loop's threads ahead of other processes
     until = Future() if until is None else until
+    _interrupted_at = None
     in_main = threading.current_thread() is threading.main_thread()   # signals only there
-    previous = signal.signal(signal.SIGINT, _stop_on_first_interrupt(until)) if in_main else None
+    previous = signal.signal(signal.SIGINT, _on_first_interrupt) if in_main else None
     try:
         # Without a timeout, EventsExecutor's spin() and spin_until_future_complete()
         # never deliver anything here (rclpy 7.1.6): wait in bounded slices instead.
-        while rclpy.ok() and not until.done():
-            executor.spin_until_future_complete(until, timeout_sec=1.0)
+        while rclpy.ok() and not until.done() and _interrupted_at is None:
+            executor.spin_until_future_complete(until, timeout_sec=SPIN_SLICE_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
@@ -179,11 +297,21 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
         if rclpy.ok():
             raise
     finally:
+        # Our SIGINT handler stays until the end: a Ctrl-C during the teardown shortens it
+        # (and is no KeyboardInterrupt traceback).
+        torn_down = threading.Event()
         if in_main:
-            signal.signal(signal.SIGINT, previous)
-        executor.shutdown()
-        if rclpy.ok():
-            wait_for_readers([p for node in nodes for p in node.publishers], LAST_MESSAGES_TIMEOUT_S)
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
+            threading.Thread(target=_exit_if_stuck, name="cr_exit_watchdog", daemon=True,
+                             args=(torn_down, time.monotonic() + LAST_MESSAGES_TIMEOUT_S + TEARDOWN_TIMEOUT_S,
+                                   ", ".join(node.get_name() for node in nodes))).start()
+        try:
+            executor.shutdown()
+            if rclpy.ok():
+                wait_for_readers([p for node in nodes for p in node.publishers], LAST_MESSAGES_TIMEOUT_S)
+            for node in nodes:
+                node.destroy_node()
+            rclpy.try_shutdown()
+        finally:
+            torn_down.set()
+            if in_main:
+                signal.signal(signal.SIGINT, previous)
