@@ -110,6 +110,7 @@ def test_session_refuses_unknown_override(tmp_path, ros_env):
 
 @pytest.mark.parametrize("override,reason", [
     (f"{SCHEME}.Q_c=[1.0, -1.0]", f"{SCHEME}: Q_c must be positive definite"),
+    (f"{SCHEME}.Q_c=[1e308, 1e308]", f"{SCHEME}: Q_c is out of bounds (each |x| <= 1e4)"),
     ("plant.stiffness=stiff", "plant: stiffness must be a number"),
 ])
 def test_session_refuses_bad_values_before_starting(tmp_path, ros_env, override, reason):
@@ -235,10 +236,10 @@ def test_cr_param_unknown_parameter(served):
 
 def test_cr_param_reads_exponent_floats(served):
     probe, node, applied = served
-    proc = cr_param(probe, "set", "/crtest", "Q_c", "[1e12, 1e12]")  # strings before
+    proc = cr_param(probe, "set", "/crtest", "Q_c", "[2e3, 2e3]")  # strings before
     assert proc.returncode == 0, proc.stderr
-    assert list(node.get_parameter("Q_c").value) == [1e12, 1e12]
-    assert list(applied["Q_c"].diagonal()) == [1e12, 1e12]
+    assert list(node.get_parameter("Q_c").value) == [2e3, 2e3]
+    assert list(applied["Q_c"].diagonal()) == [2e3, 2e3]
 
 
 def test_cr_param_unreadable_value(served):

@@ -173,6 +173,7 @@ def test_position_scheme_checks_the_advertised_interface(ros_env):
                              "backstepping_force"], env=ros_env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     probe = RosProbe(int(ros_env["ROS_DOMAIN_ID"]))
+    failure = None
     try:
         commands = []
         probe.node.create_subscription(JointState, topics.JOINT_COMMANDS, commands.append, QOS)
@@ -195,9 +196,12 @@ def test_position_scheme_checks_the_advertised_interface(ros_env):
         assert math.isfinite(cmd.position[0])
         advertise.publish(String(data="effort"))
         assert probe.spin_until(lambda: proc.poll() is not None, timeout=30), "did not exit"
+    except AssertionError as exc:   # reported with what the node printed
+        failure = exc
     finally:
         probe.close()
         _, out = stop_node(proc)
+    assert failure is None, f"{failure}; the node printed:\n{out[-3000:]}"
     assert proc.returncode == 1, out[-3000:]
     assert out.count("backstepping_force commands positions but the plant takes efforts: "
                      "refusing to drive it") == 1, out[-3000:]

@@ -120,6 +120,7 @@ from std_msgs.msg import Bool
 from cr_control.core import topics
 from cr_control.nodes.qos import READY_QOS
 from cr_control.nodes.ros_parameters import refuse_undeclared
+from cr_control.nodes.spin import refuse_empty_params_files
 
 DEFAULT_TOPICS = [
     topics.JOINT_STATES,
@@ -933,8 +934,10 @@ def record(recorder: Recorder, executor: Any, stop: _StopRequest) -> None:
 
 def main(args: Iterable[str] | None = None) -> int:
     """Entry point of the ``recorder`` executable."""
-    rclpy.init(args=list(args) if args is not None else sys.argv,
-               signal_handler_options=SignalHandlerOptions.NO)
+    argv = list(args) if args is not None else sys.argv
+    if refuse_empty_params_files("recorder", argv):
+        return 1
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = _StopRequest()
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)

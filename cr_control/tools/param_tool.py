@@ -2,9 +2,12 @@
 
 Calls the same standard rcl_interfaces services ``ros2 param`` calls, so it works with
 any ROS 2 node. Runs on $ROS_DOMAIN_ID (the session runner prints the one it uses) with
-localhost discovery unless set otherwise. Values are YAML as ROS params files read it
-(``1e12`` is a number). Exit status: 0 done, 1 refused by the node, 2 usage or
-connection error (unknown parameter, unreadable value, node not found).
+localhost discovery unless set otherwise. The node is named as ``ros2 param`` takes it:
+``/ns/name``, ``name`` (``/name``) or ``ns/name``; a name ROS would not accept is refused
+before anything starts. Values are YAML as ROS params files read it (``1e12`` is a
+number). A node that does not answer within ``--timeout`` seconds (default 3) counts as
+not found. Exit status: 0 done, 1 refused by the node, 2 usage or connection error
+(invalid node name, unknown parameter, unreadable value, node not found or not answering).
 
     cr_param list /adaptive_impedance
     cr_param get /adaptive_impedance Q_c
@@ -22,21 +25,72 @@ import yaml
 from cr_control.core import ros_yaml
 from cr_control.core.ros_env import domain_id_arg, isolate_this_process
 
-TIMEOUT_S = 10.0
+#: Default of ``--timeout``: how long to wait for the node to appear and for each answer (s).
+TIMEOUT_S = 3.0
 
 
-def _call(node, executor, srv_type, service: str, request):
+def full_node_name(text: str) -> str:
+    """The absolute name (``/ns/name``) of the node ``text`` names, as ``ros2 param`` reads
+    it (a leading ``/`` is added if missing); ValueError saying why if ROS would not take it
+    (empty, a space, ``//``, a trailing ``/``, a leading digit, non-ASCII, too long, ...)."""
+    from rclpy.exceptions import NameValidationException
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+    from rclpy.validate_namespace import validate_namespace
+    from rclpy.validate_node_name import validate_node_name
+
+    full = text if text.startswith("/") else f"/{text}"
+    namespace, _, name = full.rpartition("/")
+    longest = f"{full}/set_parameters_atomically"   # of its parameter services' names
+    try:
+        if not text:
+            raise ValueError("it is empty")
+        if "//" in full:
+            raise ValueError("it contains '//'")
+        if full.endswith("/"):
+            raise ValueError("it ends with '/'")
+        validate_namespace(namespace or "/")
+        validate_node_name(name)
+        validate_full_topic_name(longest)
+    except ValueError as exc:
+        reason = str(exc)
+    except NameValidationException as exc:
+        # rclpy's message: "Invalid node name: <reason>:", then the name and a caret
+        reason = str(exc).splitlines()[0].rstrip(":").partition(": ")[2]
+        if "topic" in reason:
+            reason = f"{reason} (service name {longest})"
+    else:
+        return full
+    raise ValueError(f"invalid node name {text!r}: {reason}")
+
+
+def _positive_seconds(text: str) -> float:
+    """argparse ``type`` of ``--timeout``: a finite number of seconds > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, not {text!r}")
+    return value
+
+
+def _call(node, executor, srv_type, service: str, request, timeout_s: float):
+    """``request`` to ``service``; TimeoutError if the service does not appear or does not
+    answer within ``timeout_s`` (each)."""
     client = node.create_client(srv_type, service)
-    deadline = time.monotonic() + TIMEOUT_S
+    deadline = time.monotonic() + timeout_s
     while not client.service_is_ready():
         if time.monotonic() > deadline:
-            raise TimeoutError(f"no service {service}: is the node running on this ROS_DOMAIN_ID?")
-        executor.spin_once(timeout_sec=0.05)
+            raise TimeoutError(f"no node {service.rpartition('/')[0]} on ROS_DOMAIN_ID "
+                               f"{node.context.get_domain_id()} (its parameter services did "
+                               f"not appear within {timeout_s:g} s; see --timeout)")
+        executor.spin_once(timeout_sec=0.02)
     future = client.call_async(request)
+    deadline = time.monotonic() + timeout_s
     while not future.done():
         if time.monotonic() > deadline:
-            raise TimeoutError(f"{service} did not answer")
-        executor.spin_once(timeout_sec=0.05)
+            raise TimeoutError(f"{service} did not answer within {timeout_s:g} s (see --timeout)")
+        executor.spin_once(timeout_sec=0.02)
     return future.result()
 
 
@@ -57,14 +111,14 @@ def run(args: argparse.Namespace) -> int:
 
     from cr_control.nodes.ros_parameters import coerce, refuse_unknown
 
-    target = "/" + args.node.strip("/")
-    rclpy.init()
+    target = args.node
+    rclpy.init(args=[sys.argv[0]])   # not our command line: it is no --ros-args
     node = rclpy.create_node("cr_param")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
 
     def call(srv_type, service: str, request):
-        return _call(node, executor, srv_type, f"{target}/{service}", request)
+        return _call(node, executor, srv_type, f"{target}/{service}", request, args.timeout)
 
     def names() -> list[str]:
         return sorted(call(ListParameters, "list_parameters", ListParameters.Request()).result.names)
@@ -105,18 +159,33 @@ def run(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     p = argparse.ArgumentParser(prog="cr_param", description=__doc__.split("\n\n")[0])
-    p.add_argument("--domain-id", type=domain_id_arg,
-                   help="ROS_DOMAIN_ID of the session (default: $ROS_DOMAIN_ID)")
+
+    def add_options(parser: argparse.ArgumentParser, default) -> None:
+        # On the main parser and on each command, so they may come before or after it
+        # (a command's own defaults are suppressed: they would hide the main parser's).
+        parser.add_argument("--domain-id", type=domain_id_arg, default=default(None),
+                            help="ROS_DOMAIN_ID of the session (default: $ROS_DOMAIN_ID)")
+        parser.add_argument("--timeout", type=_positive_seconds, default=default(TIMEOUT_S),
+                            metavar="S", help="wait at most S seconds for the node and for each "
+                                              f"answer (default {TIMEOUT_S:g})")
+
+    add_options(p, lambda value: value)
     sub = p.add_subparsers(dest="command", required=True)
-    sub.add_parser("list", help="names of a node's parameters").add_argument("node")
-    get = sub.add_parser("get", help="a parameter's value")
-    get.add_argument("node")
-    get.add_argument("name")
-    set_ = sub.add_parser("set", help="change a parameter (refused values leave the old one)")
-    set_.add_argument("node")
-    set_.add_argument("name")
-    set_.add_argument("value", help="YAML value, e.g. 2.0, 1e12 or '[50.0, 50.0]'")
+    commands = {name: sub.add_parser(name, help=text) for name, text in (
+        ("list", "names of a node's parameters"), ("get", "a parameter's value"),
+        ("set", "change a parameter (refused values leave the old one)"))}
+    for name, command in commands.items():
+        command.add_argument("node", help="node name as ros2 param takes it: /ns/name, name or ns/name")
+        if name != "list":
+            command.add_argument("name", help="parameter name")
+        add_options(command, lambda value: argparse.SUPPRESS)
+    commands["set"].add_argument("value", help="YAML value, e.g. 2.0, 1e12 or '[50.0, 50.0]'")
     args = p.parse_args(argv)
+    try:
+        args.node = full_node_name(args.node)
+    except ValueError as exc:
+        print(f"cr_param: {exc}", file=sys.stderr)
+        return 2
     isolate_this_process(args.domain_id)
     try:
         return run(args)

@@ -101,9 +101,9 @@ def _load_params_file(path: Path) -> dict[str, dict[str, Any]]:
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         reason = ros_yaml.describe_error(exc) if isinstance(exc, yaml.YAMLError) else "not text"
         raise SessionError(f"params file {path}: not valid YAML: {reason}") from None
-    if data is None:
-        return {}
-    expected = "expected 'NODE: {ros__parameters: {NAME: VALUE, ...}}'"
+    expected = f"expected '{ros_yaml.PARAMS_FILE_FORM}'"
+    if ros_yaml.is_empty_params(data):
+        raise SessionError(f"params file {path}: empty, no node's parameters ({expected})")
     if not isinstance(data, dict):
         raise SessionError(f"params file {path}: not a ROS params file ({expected}, "
                            f"found a {type(data).__name__})")
@@ -234,6 +234,19 @@ def _check_out(out: Path) -> None:
         raise SessionError(f"--out {out}: no permission to create anything in {existing}")
 
 
+def _check_name(name: str) -> None:
+    """SessionError unless ``name`` is one plain directory name (the session directory
+    must be made right under ``--out``: no path separator, no ``..``, not absolute)."""
+    seps = {"/", os.sep, os.altsep} - {None}
+    why = ("it is empty or blank" if not name.strip() else
+           "it is '.' or '..'" if name in (".", "..") else
+           "it contains a path separator" if any(sep in name for sep in seps) else
+           "it contains a NUL character" if "\0" in name else "")
+    if why:
+        raise SessionError(f"--name {name!r}: must be a plain directory name to make under --out "
+                           f"({why})")
+
+
 def _new_directories(path: Path) -> list[Path]:
     """``path`` and those of its parents that do not exist yet, outermost first."""
     missing = []
@@ -340,6 +353,8 @@ class Session:
             raise SessionError(f"mode must be realtime or lockstep, not {cfg.mode!r}")
         if not 0 < cfg.duration < math.inf:
             raise SessionError(f"duration must be a finite number > 0, not {cfg.duration}")
+        if cfg.name is not None:
+            _check_name(cfg.name)
         self.cfg = cfg
         self.progress = progress
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -408,10 +423,12 @@ class Session:
                 shutil.rmtree(created[0], ignore_errors=True)
             raise SessionError(f"cannot create {self.dir}: {exc.strerror or exc}") from None
 
-    def run(self) -> SessionResult:
-        """Run the session to the end; SessionError (with log tails) if a process fails."""
+    def run(self, domain: DomainLock | None = None) -> SessionResult:
+        """Run the session to the end; SessionError (with log tails) if a process fails.
+        ``domain``: a domain id the caller holds already (and releases), e.g. cr_fuzz, whose
+        own node joins it before the session starts."""
         cfg = self.cfg
-        self.domain = self._claim_domain()
+        self.domain = domain or self._claim_domain()
         try:
             self.env["ROS_DOMAIN_ID"] = str(self.domain.domain_id)
             self.group.inherit = (self.domain.fileno(),)
@@ -432,7 +449,8 @@ class Session:
             finally:
                 self.stop()
         finally:
-            self.domain.release()
+            if domain is None:
+                self.domain.release()
         return SessionResult(self.dir, self.mcap if cfg.record else None, self.params_path, self.logs,
                              cfg.mode)
 
