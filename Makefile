@@ -13,7 +13,7 @@ MODE ?= realtime
 OUT ?= sessions
 DEMO_ARGS ?=
 
-.PHONY: demo test lint benchmark venv clean
+.PHONY: demo test lint benchmark fuzz venv clean
 
 venv: $(STAMP)
 
@@ -50,6 +50,14 @@ BENCH_ARGS ?= --repeat 3
 BENCH_JSON ?= $(OUT)/benchmark.json
 benchmark: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/cr_benchmark --json $(BENCH_JSON) $(BENCH_ARGS)
+
+## Hostile and careless input (issue 25) against recorded real-time sessions, one row per
+## case (alive, finite, max |q'|, safe stop, resumed, verdict), ~4 min; FUZZ_ARGS e.g.
+## "--cases huge_joint_state,second_commander".
+FUZZ_ARGS ?=
+fuzz: $(STAMP)
+	$(BIN)/python -m cr_control.tools.warm_up adaptive_impedance
+	$(BIN)/python -m cr_control.tools.fuzz $(FUZZ_ARGS)
 
 clean:
 	rm -rf $(VENV) build install log *.egg-info

@@ -1,0 +1,438 @@
+"""cr_fuzz: hostile and careless input against a running real-time session (issue 25).
+
+Each case runs a recorded real-time session (plant, controller, recorder: ``cr_session``'s
+processes on a domain of their own) while this process's own node, which joined the
+domain before the session started, sends one kind of bad input two plant-timing
+messages (~2 s) after the plant began: parameters beyond their bounds, a second
+commander, a second source of joint states, a 10 MB JointState, a 10^6-element
+parameter request, a 10^12 N wrench, processes joining the domain. The recording then
+says what happened, one row per case:
+
+- alive: every process ran to the end (none died, the plant finished its run);
+- finite: every recorded joint position and velocity is finite;
+- max |q'|: the largest joint speed after the first second (rad/s or m/s);
+- safe stop: the plant's safe stop engaged (``/plant/timing``);
+- resumed: the controller commands at the end (the last timing window >= 90 % fresh,
+  none of its commands stopped);
+- miss: the longest run of plant ticks without a new command (ms at 1 kHz);
+- verdict: ``survived`` when alive, finite, no safe stop, resumed, max |q'| within the
+  baseline run's (same scheme, nothing sent) times SPEED_MARGIN plus SPEED_FLOOR, and,
+  for the cases the issue holds to it, the miss within the baseline's plus the case's
+  margin; else ``FAILED`` with the first reason.
+
+The baseline runs first. Exit status 0 if every case survived, 1 if one did not, 2 on a
+usage error.
+
+    cr_fuzz                       # every case, adaptive_impedance on the ch. 3 arm, 8 s each
+    cr_fuzz --cases second_commander,huge_joint_state --duration 6
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from cr_control.core.ros_env import claim_free_domain, isolated_env
+from cr_control.tools.robots import ROBOTS
+
+#: A case's max |q'| may exceed the baseline run's by this factor plus SPEED_FLOOR.
+SPEED_MARGIN = 1.2
+SPEED_FLOOR = 0.05
+#: The speed is judged from this many seconds after the first state (start transients).
+SETTLE_S = 1.0
+#: "resumed": the last timing window's share of fresh cycles at least this.
+RESUMED_FRESH_SHARE = 0.9
+
+
+@dataclass(frozen=True)
+class Case:
+    """One kind of bad input: ``send(intruder)`` sends it; ``miss_margin`` (ms): the case's
+    longest miss may exceed the baseline's by this much (None: not judged)."""
+
+    name: str
+    what: str
+    send: Callable[[Intruder], None]
+    miss_margin: float | None = None
+
+
+class Intruder:
+    """This process's node on the session's domain: sets parameters, publishes."""
+
+    def __init__(self, domain_id: int, controller: str):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+
+        from cr_control.core import topics
+        from cr_control.nodes.qos import CONTROL_QOS
+
+        self.topics, self.qos = topics, CONTROL_QOS
+        self.controller = f"/{controller}"
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = Node("cr_fuzz", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.joint_names: list[str] = []
+        self.timing_messages = 0
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64MultiArray
+        self.node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, self._on_timing, 10)
+        self._state_sub = self.node.create_subscription(JointState, topics.JOINT_STATES,
+                                                        self._on_state, CONTROL_QOS)
+        self.publishers: dict[str, object] = {}
+        self.replies: list = []
+        self._client = None
+        self._client_ready = False
+
+    def _on_timing(self, msg) -> None:
+        self.timing_messages += 1
+
+    def _on_state(self, msg) -> None:
+        self.joint_names = list(msg.name)
+        self.node.destroy_subscription(self._state_sub)   # one is enough: no 1 kHz load here
+
+    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while not done():
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.02)
+        return True
+
+    def publisher(self, msg_type, topic: str):
+        if topic not in self.publishers:
+            self.publishers[topic] = self.node.create_publisher(msg_type, topic, self.qos)
+            self.spin_until(lambda: False, 0.3)         # let discovery match it
+        return self.publishers[topic]
+
+    # -- what a case sends ----------------------------------------------------------------
+    def set_parameters(self, values: dict, wait: bool = True):
+        """Ask the controller to set ``values`` (name -> value); the answers go to replies."""
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+
+        if self._client is None:
+            self._client = self.node.create_client(SetParameters, f"{self.controller}/set_parameters")
+        client = self._client
+        if not self._client_ready:
+            if not self.spin_until(client.service_is_ready, 10.0):
+                raise RuntimeError(f"{self.controller}/set_parameters never appeared")
+            self._client_ready = True
+        request = SetParameters.Request(parameters=[
+            Parameter(name, value=value).to_parameter_msg() for name, value in values.items()])
+        future = client.call_async(request)
+        if wait:
+            self.spin_until(future.done, 10.0)
+            if future.done():
+                self.replies.extend(future.result().results)
+        return future
+
+    def refused_flood(self, count: int = 200, seconds: float = 1.0) -> None:
+        """``count`` refused requests (a NaN gain) in ``seconds``, then their answers."""
+        futures = []
+        for _ in range(count):
+            futures.append(self.set_parameters({"Q_c": [float("nan"), 1.0]}, wait=False))
+            self.spin_until(lambda: False, seconds / count)
+        self.spin_until(lambda: all(f.done() for f in futures), 10.0)
+        self.replies.extend(f.result().results[0] for f in futures if f.done())
+
+    def joint_state(self, names: list[str], position: list[float], velocity: list[float]):
+        from sensor_msgs.msg import JointState
+
+        msg = JointState(name=names, position=position, velocity=velocity)
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        return msg
+
+    def commands(self, effort: Callable[[int], float], count: int, rate_hz: float = 1000.0) -> None:
+        """``count`` commands on /joint_commands at ``rate_hz``, every joint at ``effort(i)``."""
+        from sensor_msgs.msg import JointState
+
+        pub = self.publisher(JointState, self.topics.JOINT_COMMANDS)
+        names = self.joint_names
+        for i in range(count):
+            msg = JointState(name=names, effort=[effort(i)] * len(names))
+            msg.header.stamp = self.node.get_clock().now().to_msg()
+            pub.publish(msg)
+            time.sleep(1.0 / rate_hz)
+
+    def states(self, count: int, offset: float = 0.5) -> None:
+        """``count`` well-formed states from a second /joint_states publisher, as fast as it
+        can send them, every position ``offset`` away from zero."""
+        from sensor_msgs.msg import JointState
+
+        pub = self.publisher(JointState, self.topics.JOINT_STATES)
+        names = self.joint_names
+        for _ in range(count):
+            pub.publish(self.joint_state(names, [offset] * len(names), [0.0] * len(names)))
+
+    def huge_state(self, entries: int = 640_000) -> None:
+        """One ~10 MB JointState (``entries`` names, positions and velocities)."""
+        from sensor_msgs.msg import JointState
+
+        pub = self.publisher(JointState, self.topics.JOINT_STATES)
+        names = [f"j{i:06d}" for i in range(entries)]
+        pub.publish(self.joint_state(names, [0.0] * entries, [0.0] * entries))
+
+    def wrench(self, force: float, count: int = 100) -> None:
+        from geometry_msgs.msg import WrenchStamped
+
+        pub = self.publisher(WrenchStamped, self.topics.WRENCH)
+        for _ in range(count):
+            msg = WrenchStamped()
+            msg.header.stamp = self.node.get_clock().now().to_msg()
+            msg.wrench.force.x = msg.wrench.force.y = msg.wrench.force.z = force
+            pub.publish(msg)
+            time.sleep(0.01)
+
+    def joiners(self, count: int = 3, every_s: float = 0.5) -> None:
+        """``count`` short-lived processes join the domain (each a node that reads
+        /joint_states for 0.5 s), ``every_s`` apart."""
+        code = ("import time, rclpy\nfrom sensor_msgs.msg import JointState\n"
+                "rclpy.init(); n = rclpy.create_node('joiner')\n"
+                "n.create_subscription(JointState, '/joint_states', lambda m: None, 10)\n"
+                "end = time.monotonic() + 0.5\n"
+                "while time.monotonic() < end: rclpy.spin_once(n, timeout_sec=0.05)\n"
+                "n.destroy_node(); rclpy.shutdown()\n")
+        env = isolated_env(self.context.get_domain_id())
+        procs = []
+        for _ in range(count):
+            procs.append(subprocess.Popen([sys.executable, "-c", code], env=env,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            time.sleep(every_s)
+        for proc in procs:
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                raise RuntimeError("a joining process did not leave within 30 s") from None
+
+    def close(self) -> None:
+        import rclpy
+
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+CASES = [
+    Case("baseline", "nothing (the run the others are judged against)", lambda x: None),
+    Case("Q_c_1e308", "Q_c = [1e308, 1e308]", lambda x: x.set_parameters({"Q_c": [1e308, 1e308]})),
+    Case("reference_frequency_1e308", "reference_frequency = 1e308",
+         lambda x: x.set_parameters({"reference_frequency": 1e308})),
+    Case("reference_amplitude_1000", "reference_amplitude = [1000, 1000]",
+         lambda x: x.set_parameters({"reference_amplitude": [1000.0, 1000.0]})),
+    Case("Q_c_nan", "Q_c = [nan, nan]", lambda x: x.set_parameters({"Q_c": [math.nan, math.nan]})),
+    Case("Q_c_1e6_values", "a Q_c of 10^6 values (8 MB request)",
+         lambda x: x.set_parameters({"Q_c": [1.0] * 1_000_000}), miss_margin=2.0),
+    Case("refused_flood", "200 refused parameter requests in 1 s", lambda x: x.refused_flood()),
+    Case("unknown_parameter", "an unknown parameter", lambda x: x.set_parameters({"no_such": 1.0})),
+    Case("second_commander", "a second /joint_commands publisher: +-20 N m bang-bang, 1 s",
+         lambda x: x.commands(lambda i: 20.0 if (i // 50) % 2 == 0 else -20.0, 1000)),
+    Case("second_commander_1e308", "a second /joint_commands publisher: 1e308, 1 s",
+         lambda x: x.commands(lambda i: 1e308, 1000)),
+    Case("second_state_source", "50 000 well-formed states from a second /joint_states publisher",
+         lambda x: x.states(50_000)),
+    Case("huge_joint_state", "one 10 MB JointState (640 000 names)", lambda x: x.huge_state(),
+         miss_margin=2.0),
+    Case("wrench_1e12", "a wrench of 1e12 N, 1 s", lambda x: x.wrench(1e12)),
+    Case("joining_nodes", "three processes join the domain and leave", lambda x: x.joiners(),
+         miss_margin=5.0),
+]
+CASE_NAMES = [case.name for case in CASES]
+
+
+#: Counters that show an input refused: the plant's (/plant/timing), the controller's status.
+PLANT_COUNTERS = ("commands_refused", "commands_foreign", "commands_oversized",
+                  "commander_handovers")
+CONTROLLER_COUNTERS = ("states_foreign", "inputs_oversized", "sensor_faults", "commands_stopped")
+
+
+@dataclass
+class Row:
+    """What a case's recording says."""
+
+    case: str
+    alive: bool
+    finite: bool
+    max_speed: float
+    safe_stop: bool
+    resumed: bool
+    miss_ms: float
+    note: str = ""
+    verdict: str = ""
+    #: What the nodes counted (nonzero counters of /plant/timing and the controller's
+    #: status) and the parameter answers: the evidence that the input was refused.
+    seen: str = ""
+
+
+def judge(recording: Path | None, case: str, alive: bool, note: str) -> Row:
+    """The row of a case from its recording (None: nothing recorded)."""
+    from cr_control.analysis.analyze import load_session
+
+    if recording is None or not recording.exists():
+        return Row(case, alive, False, math.nan, False, False, math.nan, note or "no recording")
+    session = load_session(recording)
+    states, timing = session.joint_states, session.timing
+    # Rows with none of the plant's joints (a 10 MB state of other names) carry no value.
+    finite = states is not None
+    if states is not None:
+        carried = ~np.all(np.isnan(states.position), axis=1)
+        finite = bool(np.isfinite(states.position[carried]).all()
+                      and np.isfinite(states.velocity[carried]).all())
+    speed = math.nan
+    if states is not None and len(states.time):
+        late = states.time >= states.time[0] + SETTLE_S
+        speed = float(np.nanmax(np.abs(states.velocity[late]))) if late.any() else math.nan
+    safe_stop = bool(np.any(timing.get("safe_stop", np.zeros(1)) > 0))
+    fresh = timing.get("window_fresh_share", np.zeros(0))
+    stopped = session.status.get("commands_stopped", np.zeros(1))
+    resumed = bool(len(fresh) and fresh[-1] >= RESUMED_FRESH_SHARE and stopped[-1] == 0)
+    miss = timing.get("window_max_missed_run", np.full(1, math.nan))
+    counted = [f"{name} {int(np.nanmax(values[name]))}" for values, names in (
+        (timing, PLANT_COUNTERS), (session.status, CONTROLLER_COUNTERS))
+        for name in names if name in values and np.nanmax(values[name]) > 0]
+    held = int(np.sum(session.status.get("held", np.zeros(0)) > 0))
+    counted += [f"held cycles {held}"] if held else []
+    return Row(case, alive, finite, speed, safe_stop, resumed, float(np.nanmax(miss)), note,
+               seen=", ".join(counted))
+
+
+def verdict(row: Row, case: Case, baseline: Row | None) -> str:
+    """``survived`` or ``FAILED: <first reason>``."""
+    reasons = [text for bad, text in (
+        (not row.alive, "a process died"), (not row.finite, "non-finite state"),
+        (row.safe_stop, "safe stop"), (not row.resumed, "controller not commanding at the end"))
+        if bad]
+    if baseline is not None and case.name != "baseline":
+        allowed = baseline.max_speed * SPEED_MARGIN + SPEED_FLOOR
+        if not row.max_speed <= allowed:
+            reasons.append(f"max |q'| {row.max_speed:.3g} > {allowed:.3g} (baseline's)")
+        if case.miss_margin is not None and not row.miss_ms <= baseline.miss_ms + case.miss_margin:
+            reasons.append(f"missed {row.miss_ms:.0f} ms > baseline {baseline.miss_ms:.0f} + "
+                           f"{case.miss_margin:.0f}")
+    return f"FAILED: {reasons[0]}" if reasons else "survived"
+
+
+def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print) -> Row:
+    """Run ``case`` in a recorded real-time session; its row (verdict not yet set)."""
+    from cr_control.tools.session import Session, SessionConfig, SessionError
+
+    cfg = SessionConfig(scheme=args.scheme, duration=args.duration, robot=args.robot,
+                        out=out, name=f"fuzz-{datetime.now():%Y%m%d-%H%M%S}-{case.name}")
+    session = Session(cfg, progress=lambda *_: None)
+    domain = claim_free_domain()
+    intruder = Intruder(domain.domain_id, args.scheme)
+    failure: list[str] = []
+
+    def run() -> None:
+        try:
+            session.run(domain)
+        except SessionError as exc:
+            failure.append(str(exc).splitlines()[0])
+
+    worker = threading.Thread(target=run, name=f"session-{case.name}")
+    note = ""
+    try:
+        worker.start()
+        started = intruder.spin_until(lambda: intruder.timing_messages >= 2 and intruder.joint_names,
+                                      60.0 + args.duration)
+        if started and worker.is_alive():
+            try:
+                case.send(intruder)
+            except Exception as exc:  # noqa: BLE001 - the row says what the fuzz itself could not do
+                note = f"could not send: {exc}"
+        elif worker.is_alive():
+            note = "the session never started"
+        while worker.is_alive():
+            intruder.spin_until(lambda: not worker.is_alive(), 1.0)
+    finally:
+        worker.join()
+        intruder.close()
+        domain.release()
+    row = judge(session.mcap, case.name, not failure, failure[0] if failure else note)
+    answers = [reply.reason or "accepted" if not reply.successful else "accepted"
+               for reply in intruder.replies]
+    if answers:
+        first = answers[0] if len(answers[0]) <= 70 else answers[0][:67] + "..."
+        row.seen = "; ".join(filter(None, [f"{len(answers)} answer(s): {first}", row.seen]))
+    return row
+
+
+def format_rows(rows: list[Row], cases: dict[str, Case]) -> str:
+    head = f"{'case':27} {'alive':5} {'finite':6} {'max|q_dot|':>10} {'safe stop':9} " \
+           f"{'resumed':7} {'miss ms':>7}  verdict"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        yes = {True: "yes", False: "no"}
+        lines.append(f"{r.case:27} {yes[r.alive]:5} {yes[r.finite]:6} {r.max_speed:10.3f} "
+                     f"{yes[r.safe_stop]:9} {yes[r.resumed]:7} {r.miss_ms:7.0f}  {r.verdict}"
+                     + (f"  ({r.note})" if r.note else ""))
+    lines.append("")
+    lines += [f"{r.case}: {cases[r.case].what}" + (f"; seen: {r.seen}" if r.seen else "")
+              for r in rows]
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from cr_control.schemes.registry import SCHEMES
+
+    parser = argparse.ArgumentParser(prog="cr_fuzz", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cases", default=",".join(CASE_NAMES),
+                        help=f"comma-separated, of: {', '.join(CASE_NAMES)} (baseline always runs)")
+    parser.add_argument("--scheme", default="adaptive_impedance", choices=sorted(SCHEMES))
+    parser.add_argument("--robot", default=None, help="a robot profile (panda, ur5)")
+    parser.add_argument("--duration", type=float, default=8.0, help="seconds per session")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="keep the sessions here (default: a temporary folder)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point."""
+    args = build_parser().parse_args(argv)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")   # never off this machine
+    wanted = [name.strip() for name in args.cases.split(",") if name.strip()]
+    unknown = sorted(set(wanted) - set(CASE_NAMES))
+    if unknown:
+        print(f"cr_fuzz: unknown case(s) {', '.join(unknown)}; known: {', '.join(CASE_NAMES)}",
+              file=sys.stderr)
+        return 2
+    if not 2.0 * SETTLE_S + 2.0 < args.duration <= 600.0:
+        print(f"cr_fuzz: --duration must be in (4, 600] s, not {args.duration}", file=sys.stderr)
+        return 2
+    if args.robot is not None and args.robot not in ROBOTS:
+        print(f"cr_fuzz: unknown robot {args.robot!r}; known: {', '.join(sorted(ROBOTS))}",
+              file=sys.stderr)
+        return 2
+    cases = {case.name: case for case in CASES}
+    order = ["baseline"] + [name for name in CASE_NAMES if name in wanted and name != "baseline"]
+    with tempfile.TemporaryDirectory(prefix="cr_fuzz-") as tmp:
+        out = args.out or Path(tmp)
+        rows: list[Row] = []
+        for i, name in enumerate(order, 1):
+            print(f"[{i}/{len(order)}] {name}: {cases[name].what} ...", flush=True)
+            row = run_case(cases[name], args, out)
+            row.verdict = verdict(row, cases[name], rows[0] if rows else None)
+            print(f"    {row.verdict}", flush=True)
+            rows.append(row)
+        print()
+        print(format_rows(rows, cases))
+    return 0 if all(r.verdict == "survived" for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""cr_fuzz (issue 25, item 8): its verdicts and its command line. Its real-time runs are
+``make fuzz`` (docs/safety.md has the table): real-time outcomes are not asserted in tests.
+
+The fuzz table's other rows are tests of their own: parameter bounds
+(test_parameter_bounds), a law's non-finite or saturated output (test_controller_guards),
+a second commander (test_plant_guards), a second state source, a 10 MB state and a 1e12 N
+wrench (test_controller_guards), joins (test_join_stalls), the command lines
+(test_cli_guards) and SIGINT (test_sigint); docs/safety.md maps each row to its test.
+"""
+
+import math
+import subprocess
+import sys
+
+import pytest
+
+from cr_control.tools import fuzz
+
+BASE = fuzz.Row("baseline", True, True, 1.0, False, True, 3.0)
+
+
+def row(**changes) -> fuzz.Row:
+    values = dict(case="x", alive=True, finite=True, max_speed=1.0, safe_stop=False,
+                  resumed=True, miss_ms=3.0)
+    values.update(changes)
+    return fuzz.Row(**values)
+
+
+CASE = fuzz.Case("x", "x", lambda intruder: None)
+TIGHT = fuzz.Case("x", "x", lambda intruder: None, miss_margin=2.0)
+
+
+@pytest.mark.parametrize("changes, reason", [
+    ({}, None),
+    ({"alive": False}, "a process died"),
+    ({"finite": False}, "non-finite state"),
+    ({"safe_stop": True}, "safe stop"),
+    ({"resumed": False}, "controller not commanding"),
+    ({"max_speed": 1.2 * 1.0 + 0.05 + 1e-9}, "max |q'|"),
+    ({"max_speed": math.nan}, "max |q'|"),
+])
+def test_verdict_names_the_first_failure(changes, reason):
+    got = fuzz.verdict(row(**changes), CASE, BASE)
+    assert got == "survived" if reason is None else got.startswith(f"FAILED: {reason}")
+
+
+def test_the_speed_bound_is_the_baselines_with_its_margin():
+    assert fuzz.verdict(row(max_speed=1.25), CASE, BASE) == "survived"
+    assert fuzz.verdict(row(max_speed=1.26), CASE, BASE).startswith("FAILED")
+
+
+def test_missed_cycles_are_judged_only_where_the_case_says():
+    assert fuzz.verdict(row(miss_ms=5.0), TIGHT, BASE) == "survived"
+    assert fuzz.verdict(row(miss_ms=6.0), TIGHT, BASE).startswith("FAILED: missed 6 ms")
+    assert fuzz.verdict(row(miss_ms=600.0), CASE, BASE) == "survived"
+
+
+def test_every_row_of_the_issue_is_a_case():
+    names = set(fuzz.CASE_NAMES)
+    assert {"Q_c_1e308", "reference_frequency_1e308", "reference_amplitude_1000", "Q_c_1e6_values",
+            "second_commander", "second_commander_1e308", "second_state_source",
+            "huge_joint_state", "wrench_1e12", "joining_nodes", "refused_flood",
+            "unknown_parameter"} <= names
+    assert fuzz.CASE_NAMES[0] == "baseline"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--cases", "nope"], "unknown case(s) nope"),
+    (["--duration", "1"], "--duration must be"),
+    (["--robot", "r2d2"], "unknown robot"),
+])
+def test_bad_command_lines_are_one_line_and_exit_2(args, message):
+    got = subprocess.run([sys.executable, "-m", "cr_control.tools.fuzz", *args],
+                         capture_output=True, text=True, timeout=60)
+    assert got.returncode == 2 and message in got.stderr
+    assert "Traceback" not in got.stderr and len(got.stderr.strip().splitlines()) == 1
