@@ -554,7 +554,7 @@ def integrity_warnings(values: dict[str, Any]) -> list[str]:
     return found
 
 
-#: A real-time loop "fell behind" below these (the README's targets for this machine).
+#: A real-time loop "fell behind" below these (docs/benchmark.md's targets for this machine).
 BEHIND_FRESH_SHARE = 0.95
 BEHIND_RATE_HZ = 990.0
 

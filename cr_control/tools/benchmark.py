@@ -29,7 +29,7 @@ Two ways to carry the cost figures to the machine the targets of issue 6 are sta
   calibration, speeds × calibration / reference, for :data:`REFERENCE_LOOP_NS` ns per
   loop iteration. Printed as "[loop scaling]"; it describes pure interpreter work, not
   compiled kernels or rclpy's C paths, and it does not reproduce the issue's own figures
-  (README, "Real time").
+  (docs/benchmark.md, "Real time").
 
 Every target is printed with its measured value and PASS/FAIL. With ``--repeat N`` each
 session/echo pair runs N times in ABBA order and the tables and targets show medians (of
@@ -52,7 +52,7 @@ status is read by a best-effort raw subscriber in this process (~5% of a core, s
 "benchmark listener"; ``--no-compute-time`` turns it off).
 
     cr_benchmark                         # ~4 min on a 2-core machine
-    cr_benchmark --repeat 3              # ~8 min: the README's figures
+    cr_benchmark --repeat 3              # ~8 min: the figures of docs/benchmark.md
     cr_benchmark --duration 5 --json /tmp/bench.json --skip-offline
     cr_benchmark --only-recorder-load    # the recorder's CPU per message, ~15 s
     cr_benchmark --only panda --repeat 1 --duration 5    # one layout's pair alone, ~20 s
