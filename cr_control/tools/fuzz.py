@@ -59,12 +59,15 @@ RESUMED_FRESH_SHARE = 0.9
 @dataclass(frozen=True)
 class Case:
     """One kind of bad input: ``send(intruder)`` sends it; ``miss_margin`` (ms): the case's
-    longest miss may exceed the baseline's by this much (None: not judged)."""
+    longest miss may exceed the baseline's by this much (None: not judged); ``extra_s``:
+    the session runs this much longer (an input that takes seconds to send, so that the
+    controller's resumption is judged after it)."""
 
     name: str
     what: str
     send: Callable[[Intruder], None]
     miss_margin: float | None = None
+    extra_s: float = 0.0
 
 
 class Intruder:
@@ -245,7 +248,7 @@ CASES = [
     Case("second_commander_1e308", "a second /joint_commands publisher: 1e308, 1 s",
          lambda x: x.commands(lambda i: 1e308, 1000)),
     Case("second_state_source", "50 000 well-formed states from a second /joint_states publisher",
-         lambda x: x.states(50_000)),
+         lambda x: x.states(50_000), extra_s=8.0),
     Case("huge_joint_state", "one 10 MB JointState (640 000 names)", lambda x: x.huge_state(),
          miss_margin=2.0),
     Case("wrench_1e12", "a wrench of 1e12 N, 1 s", lambda x: x.wrench(1e12)),
@@ -331,7 +334,7 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print) ->
     """Run ``case`` in a recorded real-time session; its row (verdict not yet set)."""
     from cr_control.tools.session import Session, SessionConfig, SessionError
 
-    cfg = SessionConfig(scheme=args.scheme, duration=args.duration, robot=args.robot,
+    cfg = SessionConfig(scheme=args.scheme, duration=args.duration + case.extra_s, robot=args.robot,
                         out=out, name=f"fuzz-{datetime.now():%Y%m%d-%H%M%S}-{case.name}")
     session = Session(cfg, progress=lambda *_: None)
     domain = claim_free_domain()
