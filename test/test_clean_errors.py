@@ -219,7 +219,7 @@ def served(probe):
 def cr_param(probe: RosProbe, *args: str) -> subprocess.CompletedProcess:
     """Run cr_param against the probe's domain while the probe serves the node."""
     proc = subprocess.Popen([sys.executable, "-m", "cr_control.tools.param_tool", "--domain-id",
-                             str(probe.context.get_domain_id()), *args],
+                             str(probe.context.get_domain_id()), "--timeout", "30", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert probe.spin_until(lambda: proc.poll() is not None, timeout=60), "cr_param hung"
     out, err = proc.communicate()

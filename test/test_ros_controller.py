@@ -150,7 +150,8 @@ def test_cr_param_sets_refuses_and_gets(controller):
 
     def cr_param(*args):
         return subprocess.run([sys.executable, "-m", "cr_control.tools.param_tool", "--domain-id",
-                               str(domain), *args], capture_output=True, text=True, timeout=60)
+                               str(domain), "--timeout", "30", *args], capture_output=True, text=True,
+                              timeout=120)
 
     ok = cr_param("set", NODE, "Q_b", "[7, 7]")             # integers coerced to doubles
     assert ok.returncode == 0, ok.stderr
