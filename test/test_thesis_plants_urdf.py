@@ -14,12 +14,12 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
+from robot_data import needs_erd
 
 from cr_control.core.parameters import ParameterError, resolve
 from cr_control.core.paths import config_file
 from cr_control.models.arm_model import two_link_inverse_kinematics
 from cr_control.models.planar_chain import PlanarChain
-from cr_control.models.urdf import package_share
 from cr_sim.models.constrained_dynamics import mechanism_rk4, mechanism_work_size, planar_mechanism
 from cr_sim.plants import flexible_joint_surface as fjs
 from cr_sim.plants.arm_on_surface import arm_on_surface_step, work_size
@@ -104,15 +104,6 @@ def arm_urdf(*joints: tuple) -> str:
     return "".join(body)
 
 
-def _example_robot_data() -> bool:
-    try:
-        package_share("example-robot-data")
-    except ValueError:
-        return False
-    return True
-
-
-needs_erd = pytest.mark.skipif(not _example_robot_data(), reason="example-robot-data not installed")
 
 
 # -- the plants of before, built the old way ----------------------------------------------------

@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 import pytest
+from robot_data import needs_erd
 
 from cr_control.core.parameters import ParameterError
-from cr_control.models.urdf import package_share
 from cr_sim.models import contact3d
 from cr_sim.plants.registry import make_plant
 from cr_sim.plants.urdf_surface import URDFSurface
@@ -55,15 +55,6 @@ SLIDER_URDF = """<?xml version="1.0"?>
 """
 
 
-def _example_robot_data() -> bool:
-    try:
-        package_share("example-robot-data")
-    except ValueError:
-        return False
-    return True
-
-
-needs_erd = pytest.mark.skipif(not _example_robot_data(), reason="example-robot-data not installed")
 
 
 def plant(robot: dict, **overrides) -> URDFSurface:

@@ -19,9 +19,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from robot_data import needs_erd
 
 from cr_control.core.parameters import ParameterError
-from cr_control.models.urdf import RobotModelError, Tool, load_chain, package_share
+from cr_control.models.urdf import RobotModelError, Tool, load_chain
 from cr_sim.plants.registry import make_plant
 from cr_sim.plants.urdf_surface import URDFSurface
 
@@ -45,15 +46,7 @@ GRAVITY = np.array([0.0, 0.0, -9.81])
 HAND_TCP = 0.1034           # panda_hand_tcp along the flange axis from panda_link8 (m)
 
 
-def _example_robot_data() -> bool:
-    try:
-        package_share("example-robot-data")
-    except ValueError:
-        return False
-    return True
-
-
-pytestmark = pytest.mark.skipif(not _example_robot_data(), reason="example-robot-data not installed")
+pytestmark = needs_erd
 
 
 def panda_tool(**changes) -> Tool:
