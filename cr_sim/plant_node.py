@@ -77,6 +77,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -519,15 +520,20 @@ class PlantNode(Node):
         if self._commander is None or self._commander_silence() >= self._handover_cycles:
             return False
         self.stats.commands_foreign += 1
-        if "foreign" not in self._warned:
-            self._warned.add("foreign")
-            self.get_logger().warn(
-                f"refused commands from {self._publisher_name(gid)} on "
-                f"{self.command_sub.topic_name}: the plant follows one commander at a time, "
-                f"{self._publisher_name(self._commander)}, until it has been silent for "
-                f"{self._handover_cycles} cycles (command_handover_cycles); counted in "
-                f"commands_foreign ({topics.PLANT_TIMING}), logged once")
+        self._warn_once("foreign", lambda: (
+            f"refused commands from {self._publisher_name(gid)} on "
+            f"{self.command_sub.topic_name}: the plant follows one commander at a time, "
+            f"{self._publisher_name(self._commander)}, until it has been silent for "
+            f"{self._handover_cycles} cycles (command_handover_cycles); counted in "
+            f"commands_foreign ({topics.PLANT_TIMING}), logged once"))
         return True
+
+    def _warn_once(self, key: str, text: Callable[[], str]) -> None:
+        """Log ``text()`` as a warning the first time ``key`` comes (the text is only built
+        then: it may query the graph)."""
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warn(text())
 
     def _take_over(self, gid: bytes) -> None:
         """``gid``'s valid command makes it the commander (the first, or after the silence)."""
@@ -543,12 +549,9 @@ class PlantNode(Node):
 
     def _refuse_oversized(self, length: int) -> None:
         self.stats.commands_oversized += 1
-        if "oversized" not in self._warned:
-            self._warned.add("oversized")
-            self.get_logger().warn(
-                f"refused a {length}-byte command unread: more than {MAX_COMMAND_BYTES} bytes "
-                f"({MAX_COMMAND_JOINTS} joints' worth); counted in commands_oversized, "
-                "logged once")
+        self._warn_once("oversized", lambda: (
+            f"refused a {length}-byte command unread: more than {MAX_COMMAND_BYTES} bytes "
+            f"({MAX_COMMAND_JOINTS} joints' worth); counted in commands_oversized, logged once"))
 
     def _on_command(self, data: bytes | None, gid: bytes = b"", length: int = 0) -> None:
         """A serialized command from the publisher ``gid`` (its GID; b"" if unknown);
@@ -723,12 +726,11 @@ class PlantNode(Node):
         self.stats.command_publishers, self.stats.state_publishers = commands, states
         for topic, count, allowed in ((self.command_sub.topic_name, commands, 1),
                                       (self.state_pub.topic_name, states, 1)):
-            if count > allowed and topic not in self._warned:
-                self._warned.add(topic)
-                self.get_logger().warn(
+            if count > allowed:
+                self._warn_once(topic, lambda count=count, topic=topic, allowed=allowed: (
                     f"{count} publishers on {topic} (expected {allowed}): another session on "
                     "this ROS_DOMAIN_ID or a rogue node is on the control loop; counted in "
-                    f"{topics.PLANT_TIMING}")
+                    f"{topics.PLANT_TIMING}"))
 
     def _publish_timing(self) -> None:
         if not self._started:
