@@ -52,6 +52,7 @@ setup(
             "cr_analyze = cr_control.analysis.analyze:main",
             "cr_benchmark = cr_control.tools.benchmark:main",
             "cr_param = cr_control.tools.param_tool:main",
+            "cr_lifecycle = cr_control.tools.lifecycle_tool:main",
             "cr_fuzz = cr_control.tools.fuzz:main",
         ]
         + [f"{name} = cr_control.nodes.controller_node:main_{name}" for name in SCHEMES],

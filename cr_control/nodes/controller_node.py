@@ -60,6 +60,7 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import GetParameters
 from rclpy.duration import Duration
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
@@ -116,8 +117,9 @@ def wait_for_acks(node: Node, timeout_s: float = 2.0) -> None:
             publisher.wait_for_all_acked(Duration(seconds=timeout_s))
 
 
-class ControllerNode(Node):
-    """Runs the control scheme ``scheme`` on the topic contract of DESIGN.md."""
+class ControllerNode(LifecycleNode):
+    """Runs the control scheme ``scheme`` on the topic contract of DESIGN.md, as a managed
+    (lifecycle) node: it answers states only while active (module docstring, "Lifecycle")."""
 
     def __init__(self, scheme: str, **kwargs):
         super().__init__(scheme, **kwargs)
@@ -145,6 +147,9 @@ class ControllerNode(Node):
         self.force = np.zeros(3)
         self._last_stamp: tuple[int, int] | None = None
         self._answered = False
+        self.active = False                   # lifecycle state "active": states are answered
+        self.activations = 0
+        self._held_state: tuple[bytes, bytes | None] | None = None  # the last one seen inactive
         # Guards (module docstring): counts, the followed publisher, size bounds.
         self.states_foreign = self.source_handovers = self.inputs_oversized = 0
         self.sensor_faults = 0
@@ -213,7 +218,45 @@ class ControllerNode(Node):
                                      quiet_on_shutdown(self, self._on_target_wrench), TARGET_QOS)
         self.get_logger().info(
             f"{scheme}: {len(specs)} parameters, commanding {self.joint_names} "
-            f"({self.controller.command_interface})")
+            f"({self.controller.command_interface})"
+            + ("" if values["autostart"] else "; unconfigured until told (autostart false)"))
+        if values["autostart"]:
+            self.trigger_configure()
+            self.trigger_activate()
+
+    # -- lifecycle (module docstring) ---------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Everything the law needs was made and checked at start-up: nothing to do."""
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Answer states from now on, the law started afresh from the current state
+        (:meth:`Controller.reset`); the last state seen while inactive is answered at once
+        (a lockstep plant is waiting for it)."""
+        relative = bool(self.controller.values.get("reference_relative", False))
+        self.controller.reset(keep_time=not relative)
+        self._last_stamp, self._answered = None, False
+        self.active = True
+        self.activations += 1
+        self.get_logger().info(f"{self.scheme}: active, the law starts from the current state"
+                               + (" (its reference restarts here)" if relative else ""))
+        held, self._held_state = self._held_state, None
+        if held is not None:
+            self._on_joint_state(*held)
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop answering states: no command is published while inactive."""
+        self.active = False
+        self.get_logger().info(f"{self.scheme}: inactive, no command is published")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = False
+        return TransitionCallbackReturn.SUCCESS
 
     # -- parameters -----------------------------------------------------------------
     @staticmethod
@@ -477,6 +520,10 @@ class ControllerNode(Node):
             self._follow(sender, entry)
         self._source_seen = entry
         stamp = (state.sec, state.nanosec)
+        if not self.active:
+            self.controller.observe(stamp[0] + stamp[1] * 1e-9)   # the law's time origin
+            self._held_state = (data, sender)
+            return
         if stamp == self._last_stamp and self._answered:
             if self.controller.commanding:
                 self.command_pub.publish(self._command_bytes)  # a repeated state: same answer

@@ -75,6 +75,9 @@ COMMON_PARAMETERS = [
           "(integer >= 1). 1 = every cycle, as the thesis figures and the lockstep "
           "determinism tests need; costs one in/out message pair per cycle (out_time_us).",
           "integer", bound=10000),    # every 10 s at 1 kHz
+    Param("autostart", True, "Configure and activate this (lifecycle) node at start, so it "
+          "answers states at once; false: it waits unconfigured until told through "
+          "~/change_state (ros2 lifecycle set, cr_lifecycle).", "bool", read_only=True),
     Param("lockstep", False, "The plant steps on this node's commands (cr_session --mode "
           "lockstep sets it): every 250 cycles the node waits until every reader of its "
           "topics (a recorder) acknowledged them, so a recording loses nothing. Leave it off "
@@ -399,7 +402,9 @@ class Controller(ABC):
             reason = self._refused_state(stamp, q, v, force)
         else:
             if self._t0 is None:
-                self._t0 = self._t_prev = self._t_step = stamp
+                self._t0 = stamp
+            if self._t_prev is None:
+                self._t_prev = self._t_step = stamp
             gap = stamp - self._t_prev
             if 0.0 <= gap <= values["max_stamp_gap"]:
                 self._t_prev = stamp
@@ -418,6 +423,31 @@ class Controller(ABC):
         out.status[self._i_compute] = (time.perf_counter() - start) * 1e6
         return out
 
+    def reset(self, keep_time: bool) -> None:
+        """Start the law afresh from the next state, as a lifecycle activation does: the
+        internal state (estimates, integrators, filters, the reference's anchors and its
+        admittance) back to its initial value, the stepping restarted (the next state
+        integrates nothing), the bad-cycle run cleared and commanding on. Parameters stay
+        as they are. ``keep_time``: the law's clock keeps its origin (the first state this
+        controller ever saw), so an absolute reference (the thesis paths) goes on where it
+        is; else the next state is t = 0, as at a fresh start."""
+        if self.internal is not None and self._internal_of is self.internal:
+            np.copyto(self.internal, self._internal_initial)
+            self._internal_good = self._internal_initial.copy()
+        if not keep_time:
+            self._t0 = None
+        self._t_prev = self._t_step = None
+        self._guard[:] = 0.0
+        self.bad_run = 0
+        self.commanding = True
+        self._last = None
+
+    def observe(self, stamp: float) -> None:
+        """A state seen while the law does not run (an inactive node): it fixes the law's
+        time origin if none is set yet, nothing else."""
+        if self._t0 is None and math.isfinite(stamp):
+            self._t0 = stamp
+
     def _refused_state(self, stamp: float, q: np.ndarray, v: np.ndarray, force: np.ndarray) -> str:
         """Why :func:`admit_state` refused a state (the rare path: numpy is fine here)."""
         n = self.n_state
@@ -433,6 +463,7 @@ class Controller(ABC):
         internal = _NO_INTERNAL if self.internal is None else self.internal
         if internal is not self._internal_of:
             self._internal_good, self._internal_of = internal.copy(), internal  # initial value
+            self._internal_initial = internal.copy()
         out = self.compute(stamp - self._t0, dt, q, v, force)
         values = self.values
         verdict, run = accept_cycle(self.n_joints, values["max_effort"], self.command_limits,

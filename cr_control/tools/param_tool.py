@@ -74,16 +74,17 @@ def _positive_seconds(text: str) -> float:
     return value
 
 
-def _call(node, executor, srv_type, service: str, request, timeout_s: float):
+def call_service(node, executor, srv_type, service: str, request, timeout_s: float,
+                 what: str = "its parameter services"):
     """``request`` to ``service``; TimeoutError if the service does not appear or does not
-    answer within ``timeout_s`` (each)."""
+    answer within ``timeout_s`` (each); ``what`` names the node's services in that message."""
     client = node.create_client(srv_type, service)
     deadline = time.monotonic() + timeout_s
     while not client.service_is_ready():
         if time.monotonic() > deadline:
             raise TimeoutError(f"no node {service.rpartition('/')[0]} on ROS_DOMAIN_ID "
-                               f"{node.context.get_domain_id()} (its parameter services did "
-                               f"not appear within {timeout_s:g} s; see --timeout)")
+                               f"{node.context.get_domain_id()} ({what} did not appear "
+                               f"within {timeout_s:g} s; see --timeout)")
         executor.spin_once(timeout_sec=0.02)
     future = client.call_async(request)
     deadline = time.monotonic() + timeout_s
@@ -118,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     executor.add_node(node)
 
     def call(srv_type, service: str, request):
-        return _call(node, executor, srv_type, f"{target}/{service}", request, args.timeout)
+        return call_service(node, executor, srv_type, f"{target}/{service}", request, args.timeout)
 
     def names() -> list[str]:
         return sorted(call(ListParameters, "list_parameters", ListParameters.Request()).result.names)

@@ -71,6 +71,10 @@ class SessionConfig:
     domain_id: int | None = None
     name: str | None = None
     robot: str | None = None
+    #: A second scheme, started inactive (autostart false) and switched to live at
+    #: ``switch_at`` simulated seconds (cr_lifecycle switch): ``--switch-to``, ``--switch-at``.
+    switch_to: str | None = None
+    switch_at: float = 0.0
 
 
 @dataclass
@@ -140,7 +144,7 @@ def _merge(params: dict[str, dict[str, Any]], node: str, values: dict[str, Any],
         params[target].update(values)
 
 
-def node_specs(node: str, params: dict[str, Any], scheme: str) -> list[Param] | None:
+def node_specs(node: str, params: dict[str, Any]) -> list[Param] | None:
     """The declared parameters of session node ``node`` given its ``params`` (None for
     the recorder, which declares plain ROS parameters: see RECORDER_PARAMETERS)."""
     if node == "recorder":
@@ -154,7 +158,7 @@ def node_specs(node: str, params: dict[str, Any], scheme: str) -> list[Param] | 
             raise SessionError(f"plant.scenario {scenario!r} is not one of {sorted(SCENARIOS)}")
         return plant_parameters(scenario)
     try:
-        return controller_class(scheme).parameters(params)
+        return controller_class(node).parameters(params)
     except ParameterError as exc:
         raise SessionError(f"{node}: {exc}") from None
 
@@ -169,31 +173,38 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
     SessionError naming the file, node or parameter for anything a node would not take:
     unreadable or malformed files, unknown nodes, unknown parameter names, refused values.
     """
+    schemes = session_schemes(cfg)
     if cfg.robot is None:
         scenario = default_scenario(cfg.scheme)
-        params = _load_params_file(config_file(f"{cfg.scheme}.yaml"))
+        params = {s: _load_params_file(config_file(f"{s}.yaml"))[s] for s in schemes}
         params.update(_load_params_file(config_file(f"plant_{scenario}.yaml")))
         params["plant"].update(default_plant_overrides(cfg.scheme))
     else:                               # the robot's wiping task (cr_control.tools.robots)
-        params = _load_params_file(config_file(f"robots/{cfg.robot}/{cfg.scheme}.yaml"))
+        params = {s: _load_params_file(config_file(f"robots/{cfg.robot}/{s}.yaml"))[s]
+                  for s in schemes}
         params.update(_load_params_file(config_file(f"robots/{cfg.robot}/plant.yaml")))
         scenario = params["plant"]["scenario"]
     params["plant"].update(scenario=scenario, mode=cfg.mode, duration=float(cfg.duration),
                            wait_for_recorder=cfg.record)
-    params[cfg.scheme]["lockstep"] = cfg.mode == "lockstep"
-    if cfg.mode == "realtime":
-        # Each publish costs about as much as the whole control law (benchmark: controller
-        # "out" 426 us for command + reference + status vs 150 us with decimated
-        # diagnostics): in real time the diagnostics go out at 100 Hz, the command every
-        # cycle. Lockstep keeps every cycle (thesis figures, offline equality);
-        # -p <scheme>.diagnostics_every=1 gives the full rate in real time too.
-        params[cfg.scheme]["diagnostics_every"] = REALTIME_DIAGNOSTICS_EVERY
+    for scheme in schemes:
+        params[scheme]["lockstep"] = cfg.mode == "lockstep"
+        if cfg.mode == "realtime":
+            # Each publish costs about as much as the whole control law (benchmark: controller
+            # "out" 426 us for command + reference + status vs 150 us with decimated
+            # diagnostics): in real time the diagnostics go out at 100 Hz, the command every
+            # cycle. Lockstep keeps every cycle (thesis figures, offline equality);
+            # -p <scheme>.diagnostics_every=1 gives the full rate in real time too.
+            params[scheme]["diagnostics_every"] = REALTIME_DIAGNOSTICS_EVERY
+    if cfg.switch_to is not None:
+        params[cfg.switch_to]["autostart"] = False
     params["recorder"] = {
         "output": str(mcap),
         "topics": [topics.JOINT_STATES, topics.WRENCH, topics.JOINT_COMMANDS, topics.PLANT_TIMING,
-                   topics.PARAMETER_EVENTS, topics.reference_topic(cfg.scheme),
-                   topics.status_topic(cfg.scheme)] + ([topics.CLOCK] if cfg.mode == "lockstep" else []),
-        "parameter_nodes": ["plant", cfg.scheme],
+                   topics.PARAMETER_EVENTS]
+        + [t for s in schemes for t in (topics.reference_topic(s), topics.status_topic(s))]
+        + ([topics.CLOCK] if cfg.mode == "lockstep" else [])
+        + ([f"/{s}/transition_event" for s in schemes] if cfg.switch_to else []),
+        "parameter_nodes": ["plant", *schemes],
         "ready_timeout": 30.0,
     }
     for path in cfg.params_files:
@@ -202,16 +213,21 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
     for text in cfg.overrides:
         node, name, value = _parse_override(text)
         _merge(params, node, {name: value}, f"override {text!r}")
-    _check_parameters(params, cfg.scheme)
+    _check_parameters(params)
     return params
 
 
-def _check_parameters(params: dict[str, dict[str, Any]], scheme: str) -> None:
+def session_schemes(cfg: SessionConfig) -> list[str]:
+    """The session's controllers: the scheme, and the one it switches to."""
+    return [cfg.scheme] + ([cfg.switch_to] if cfg.switch_to else [])
+
+
+def _check_parameters(params: dict[str, dict[str, Any]]) -> None:
     """SessionError for a parameter a node does not have or would refuse at start."""
     from cr_control.nodes.ros_parameters import refuse_unknown
 
     for node, values in params.items():
-        specs = node_specs(node, values, scheme)
+        specs = node_specs(node, values)
         try:
             refuse_unknown(node, values, RECORDER_PARAMETERS if specs is None else
                            [spec.name for spec in specs])
@@ -221,6 +237,26 @@ def _check_parameters(params: dict[str, dict[str, Any]], scheme: str) -> None:
             ok, reason, _ = validate(spec, values.get(spec.name, spec.default))
             if not ok:
                 raise SessionError(f"{node}: {reason}")
+
+
+def _check_switch(cfg: SessionConfig) -> None:
+    """SessionError unless ``cfg.switch_to`` can take over from ``cfg.scheme`` live."""
+    other = cfg.switch_to
+    if other not in SCHEMES:
+        raise SessionError(f"--switch-to: unknown scheme {other!r}; known: {sorted(SCHEMES)}")
+    if other == cfg.scheme:
+        raise SessionError(f"--switch-to {other}: the session already runs it")
+    if cfg.composed:
+        raise SessionError("--switch-to needs the controllers as processes (not --composed)")
+    if cfg.robot is not None and other not in TASK_SPACE_SCHEMES:
+        raise SessionError(f"--switch-to {other}: runs on its thesis plant only; on a robot: "
+                           f"{', '.join(TASK_SPACE_SCHEMES)}")
+    if cfg.robot is None and default_scenario(other) != default_scenario(cfg.scheme):
+        raise SessionError(f"--switch-to {other}: its plant is {default_scenario(other)}, "
+                           f"not {cfg.scheme}'s {default_scenario(cfg.scheme)}")
+    if not 0.0 <= cfg.switch_at < cfg.duration:
+        raise SessionError(f"--switch-at {cfg.switch_at:g}: must be within the session "
+                           f"(0 <= T < --duration {cfg.duration:g})")
 
 
 def _check_out(out: Path) -> None:
@@ -268,10 +304,14 @@ class ProcessGroup:
         self.progress = progress
         self.inherit = tuple(inherit)
         self.processes: dict[str, subprocess.Popen] = {}
+        self.one_shot: set[str] = set()      # may end before the main process (code 0)
         self._files: list = []
 
-    def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
-        """Start ``cmd`` as ``name``, its output going to logs/<name>.log."""
+    def start(self, name: str, cmd: list[str], one_shot: bool = False) -> subprocess.Popen:
+        """Start ``cmd`` as ``name``, its output going to logs/<name>.log; a ``one_shot``
+        process does its job and ends (only a non-zero exit is a failure)."""
+        if one_shot:
+            self.one_shot.add(name)
         log = open(self.logs / f"{name}.log", "w")  # noqa: SIM115 - closed by stop()
         self._files.append(log)
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=self.env,
@@ -302,7 +342,8 @@ class ProcessGroup:
         last = ""
         while main.poll() is None:
             for name, proc in self.processes.items():
-                if proc is not main and proc.poll() is not None:
+                if proc is not main and proc.poll() is not None and (
+                        name not in self.one_shot or proc.returncode != 0):
                     raise SessionError(f"{name} exited early (code {proc.returncode}):\n{self.tail(name)}")
             if time.monotonic() > deadline:
                 raise SessionError(
@@ -353,6 +394,8 @@ class Session:
             raise SessionError(f"mode must be realtime or lockstep, not {cfg.mode!r}")
         if not 0 < cfg.duration < math.inf:
             raise SessionError(f"duration must be a finite number > 0, not {cfg.duration}")
+        if cfg.switch_to is not None:
+            _check_switch(cfg)
         if cfg.name is not None:
             _check_name(cfg.name)
         self.cfg = cfg
@@ -442,7 +485,13 @@ class Session:
                 if cfg.composed:
                     self._start(main, "cr_control.nodes.container", cfg.scheme)
                 else:
-                    self._start(cfg.scheme, "cr_control.nodes.controller_node", cfg.scheme)
+                    for scheme in session_schemes(cfg):
+                        self._start(scheme, "cr_control.nodes.controller_node", scheme)
+                    if cfg.switch_to:
+                        self.group.start("switch", [
+                            sys.executable, "-m", "cr_control.tools.lifecycle_tool",
+                            "--timeout", str(STARTUP_TIMEOUT_S), "switch", cfg.scheme,
+                            cfg.switch_to, "--at", repr(cfg.switch_at)], one_shot=True)
                     self._start(main, "cr_sim.plant_node")
                 budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
                 self.group.wait(main, budget, "] [plant]: t=")
@@ -492,6 +541,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="extra ROS params file(s) (node names: plant, recorder, the scheme)")
     p.add_argument("-p", "--set", dest="overrides", action="append", default=[],
                    metavar="NODE.PARAM=VALUE", help="override one parameter, e.g. plant.stiffness=300.0")
+    p.add_argument("--switch-to", metavar="SCHEME",
+                   help="also start SCHEME inactive and switch to it live at --switch-at "
+                        "(lifecycle transitions: the first is deactivated, SCHEME activated)")
+    p.add_argument("--switch-at", type=float, default=0.0, metavar="T",
+                   help="simulated seconds after the start at which to switch (default 0)")
     p.add_argument("--no-record", action="store_true", help="run without the recorder")
     p.add_argument("--no-analysis", action="store_true", help="do not analyse the recording")
     p.add_argument("--domain-id", type=domain_id_arg,
@@ -506,7 +560,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = SessionConfig(scheme=args.scheme, duration=args.duration, mode=args.mode,
                         composed=args.composed, record=not args.no_record, out=args.out,
                         params_files=args.params_file, overrides=args.overrides,
-                        domain_id=args.domain_id, name=args.name, robot=args.robot)
+                        domain_id=args.domain_id, name=args.name, robot=args.robot,
+                        switch_to=args.switch_to, switch_at=args.switch_at)
     try:
         session = Session(cfg)
         result = session.run()
