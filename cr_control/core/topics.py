@@ -20,6 +20,9 @@ CLOCK = "/clock"
 PLANT_TIMING = "/plant/timing"
 PARAMETER_EVENTS = "/parameter_events"
 RECORDER_READY = "/recorder/ready"
+#: diagnostic_msgs/DiagnosticArray, 1 Hz, from the plant and every controller (issue 22;
+#: the levels' rules: cr_control.core.diagnostics).
+DIAGNOSTICS = "/diagnostics"
 
 REFERENCE_SUFFIX = "reference"
 STATUS_SUFFIX = "status"

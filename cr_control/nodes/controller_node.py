@@ -67,6 +67,7 @@ from std_msgs.msg import Float64MultiArray, String
 
 from cr_control.core import cdr, topics
 from cr_control.nodes import sender_aware
+from cr_control.nodes.diagnostics import ControllerDiagnostics
 from cr_control.nodes.lockstep import ReaderPacer
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS, TARGET_QOS
 from cr_control.nodes.raw_messages import (
@@ -189,6 +190,7 @@ class ControllerNode(Node):
         self._read_state, self._read_wrench = JointStateReader(), WrenchReader()
         self._read_sensors = ArrayReader()
         self._n_status = len(self.controller.status_fields)
+        self.diagnostics = ControllerDiagnostics(self, self.controller, scheme)   # /diagnostics
         # Latched like the recorder's ready flag (READY_QOS: RELIABLE, TRANSIENT_LOCAL, 1).
         self.create_subscription(String, topics.PLANT_COMMAND_INTERFACE,
                                  quiet_on_shutdown(self, self._on_plant_interface), READY_QOS)
@@ -495,6 +497,7 @@ class ControllerNode(Node):
 
         # -- messages out (timed; reported in the next published status) --
         out_start = time.perf_counter()
+        self.diagnostics.cycle(t, out_start - compute_start)
         self._command.set_stamp(*stamp)
         self._command_out[:] = out.command
         self._command_bytes = self._command.message()
