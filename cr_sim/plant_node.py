@@ -106,6 +106,7 @@ from cr_sim.loop_stats import (
     SAFE_STOP_WATCHDOG,
     LoopStats,
 )
+from cr_sim.plant_markers import PlantMarkers
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS
 
@@ -317,6 +318,7 @@ class PlantNode(Node):
         # /diagnostics (issue 22): judged from each timing report.
         self.diagnostics = PlantDiagnostics(self, self.scenario, self.settings["rate_hz"],
                                             not self.lockstep, SAFE_STOP_REASONS)
+        self.markers = PlantMarkers(self, self.plant)    # /plant/markers, ~30 Hz (issue 22)
         self._pacer = ReaderPacer(self, [self.state_pub, self.wrench_pub, self.sensors_pub,
                                          self.clock_pub])   # used in lockstep
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
@@ -458,6 +460,7 @@ class PlantNode(Node):
         i = self._ring_i = (self._ring_i + 1) % _RING
         self._ring_stamps[i], self._ring_times[i] = key, now
         self.stats.published(time.perf_counter() - start)
+        self.markers.tick(self.plant.time, sec, nanosec)
 
     def _published_at(self, key: int) -> float | None:
         """Wall time the state stamped ``key`` was published (None if not among the last)."""

@@ -182,6 +182,16 @@ def test_session_ok_then_the_plant_errors_within_2_s_of_a_killed_controller(ros_
         lambda m: got.extend((m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec, s.name,
                               s.level[0], s.message) for s in m.status),
         DIAGNOSTICS_QOS)
+    # The scene markers in real time too (issue 22): their rate by their stamps, printed.
+    from visualization_msgs.msg import MarkerArray
+
+    from cr_control.nodes.markers import MARKERS_QOS
+    marker_stamps: dict[str, list[float]] = {topics.PLANT_MARKERS: [], "/adaptive_impedance/markers": []}
+    for topic, stamps in marker_stamps.items():
+        probe.node.create_subscription(
+            MarkerArray, topic, lambda m, s=stamps: s.append(m.markers[0].header.stamp.sec
+                                                              + 1e-9 * m.markers[0].header.stamp.nanosec),
+            MARKERS_QOS)
     plant = start_node(PLANT, ros_env, "-p", "watchdog_missed_cycles:=300")
     controller = start_node(CONTROLLER, ros_env)
     try:
@@ -201,6 +211,10 @@ def test_session_ok_then_the_plant_errors_within_2_s_of_a_killed_controller(ros_
         # loaded 2-core machine). The rules themselves are tested above without ROS.
         for name in (LOOP, CONTROL):
             assert all(level in (OK, WARN) for level, _ in reports(name)), reports(name)
+        for topic, stamps in marker_stamps.items():
+            assert len(stamps) > 10, topic
+            print(f"{topic}: {len(stamps)} in {stamps[-1] - stamps[0]:.2f} s of stamps: "
+                  f"{(len(stamps) - 1) / (stamps[-1] - stamps[0]):.1f} Hz")
         killed = time.time()                  # the nodes stamp with the wall clock
         controller.send_signal(signal.SIGKILL)
         controller.wait(timeout=10)

@@ -193,8 +193,9 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
         "topics": [topics.JOINT_STATES, topics.WRENCH, topics.JOINT_COMMANDS, topics.PLANT_TIMING,
                    topics.PARAMETER_EVENTS, topics.reference_topic(cfg.scheme),
                    topics.status_topic(cfg.scheme)] + ([topics.CLOCK] if cfg.mode == "lockstep" else []),
-        # Recorded when they appear, never waited for (issue 22: /diagnostics).
-        "optional_topics": [topics.CLOCK, topics.PLANT_SENSORS, topics.DIAGNOSTICS],
+        # Recorded when they appear, never waited for (issue 22: /diagnostics, markers).
+        "optional_topics": [topics.CLOCK, topics.PLANT_SENSORS, topics.DIAGNOSTICS,
+                            topics.PLANT_MARKERS, topics.markers_topic(cfg.scheme)],
         "parameter_nodes": ["plant", cfg.scheme],
         "ready_timeout": 30.0,
     }
