@@ -30,7 +30,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.urdf")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.urdf")
+         + glob("config/*.json")),
     ]
     # the robots' wiping tasks (cr_session --robot): config/robots/<robot>/*.yaml
     + [(f"share/{PACKAGE}/config/robots/{robot}", glob(f"config/robots/{robot}/*.yaml"))

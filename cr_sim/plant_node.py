@@ -92,6 +92,7 @@ from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension, String
 from cr_control.core import cdr, topics
 from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.nodes import sender_aware
+from cr_control.nodes.diagnostics import PlantDiagnostics
 from cr_control.nodes.lockstep import ReaderPacer, wait_for_readers
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.raw_messages import JointStateFields, JointStateReader
@@ -105,6 +106,7 @@ from cr_sim.loop_stats import (
     SAFE_STOP_WATCHDOG,
     LoopStats,
 )
+from cr_sim.plant_markers import PlantMarkers
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS
 
@@ -313,6 +315,10 @@ class PlantNode(Node):
         self._sensors_out = self._sensors.array("data")
         self.timing_pub = self.create_publisher(Float64MultiArray, topics.PLANT_TIMING, PUBLISH_QOS)
         self.clock_pub = self.create_publisher(Clock, topics.CLOCK, PUBLISH_QOS) if self.lockstep else None
+        # /diagnostics (issue 22): judged from each timing report.
+        self.diagnostics = PlantDiagnostics(self, self.scenario, self.settings["rate_hz"],
+                                            not self.lockstep, SAFE_STOP_REASONS)
+        self.markers = PlantMarkers(self, self.plant)    # /plant/markers, ~30 Hz (issue 22)
         self._pacer = ReaderPacer(self, [self.state_pub, self.wrench_pub, self.sensors_pub,
                                          self.clock_pub])   # used in lockstep
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
@@ -454,6 +460,7 @@ class PlantNode(Node):
         i = self._ring_i = (self._ring_i + 1) % _RING
         self._ring_stamps[i], self._ring_times[i] = key, now
         self.stats.published(time.perf_counter() - start)
+        self.markers.tick(self.plant.time, sec, nanosec)
 
     def _published_at(self, key: int) -> float | None:
         """Wall time the state stamped ``key`` was published (None if not among the last)."""
@@ -637,6 +644,7 @@ class PlantNode(Node):
         self.safe_stop = True
         self.stats.safe_stop = 1.0
         self.stats.safe_stop_reason = reason
+        self.diagnostics.safe_stop(reason)       # ERROR on /diagnostics now, not at the next report
         self.plant.begin_safe_stop()
         self.get_logger().error(
             f"{what} at t = {self.plant.time:.3f} s: "
@@ -741,6 +749,7 @@ class PlantNode(Node):
         self._timing_msg.data = [stamp, *self.stats.report(now)]
         self.timing_pub.publish(self._timing_msg)
         d = dict(zip(topics.PLANT_TIMING_FIELDS, self._timing_msg.data, strict=True))
+        self.diagnostics.report(d)
         self.get_logger().info(
             f"t={self.plant.time:.1f} s rate={d['rate_hz']:.0f} Hz "
             f"fresh={100 * d['window_fresh_share']:.2f}% "

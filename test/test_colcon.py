@@ -106,7 +106,7 @@ def test_install_tree_has_what_ros_tools_look_for(workspace):
         assert os.access(lib / name, os.X_OK), f"lib/{PACKAGE}/{name} is not executable"
     share = prefix / "share" / PACKAGE
     assert (share / "package.xml").read_bytes() == (REPO / "package.xml").read_bytes()
-    shipped = {p.name for p in (REPO / "config").iterdir() if p.suffix in (".yaml", ".urdf")}
+    shipped = {p.name for p in (REPO / "config").iterdir() if p.suffix in (".yaml", ".urdf", ".json")}
     assert shipped and {p.name for p in (share / "config").iterdir()} >= shipped
     for name in shipped:
         assert (share / "config" / name).read_bytes() == (REPO / "config" / name).read_bytes()

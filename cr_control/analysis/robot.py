@@ -50,7 +50,7 @@ REQUIRED = tuple(f"{q}_{a}" for q in ("r", "e", "f") for a in AXES)
 #: Contact is judged from this long after the first sample on (s).
 CONTACT_GRACE_S = 0.05
 _UP = np.array([0.0, 0.0, 1.0])
-#: (time, values, style) per line of a comparison panel (see analyze._overlay).
+#: (time, values, style) per line of a comparison panel (see plots._overlay).
 Lines = list[tuple[np.ndarray, np.ndarray, str]]
 
 

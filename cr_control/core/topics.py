@@ -20,6 +20,14 @@ CLOCK = "/clock"
 PLANT_TIMING = "/plant/timing"
 PARAMETER_EVENTS = "/parameter_events"
 RECORDER_READY = "/recorder/ready"
+#: diagnostic_msgs/DiagnosticArray, 1 Hz, from the plant and every controller (issue 22;
+#: the levels' rules: cr_control.core.diagnostics).
+DIAGNOSTICS = "/diagnostics"
+#: visualization_msgs/MarkerArray, ~30 Hz (issue 22): the plant's scene (surface or
+#: constraint, links, tip trail, contact force) and each controller's desired path
+#: (``/<controller>/markers``, :func:`markers_topic`).
+PLANT_MARKERS = "/plant/markers"
+MARKERS_SUFFIX = "markers"
 
 REFERENCE_SUFFIX = "reference"
 STATUS_SUFFIX = "status"
@@ -45,6 +53,11 @@ def reference_topic(controller: str) -> str:
 def status_topic(controller: str) -> str:
     """Topic of a controller's errors, estimates and compute time."""
     return f"/{controller}/{STATUS_SUFFIX}"
+
+
+def markers_topic(controller: str) -> str:
+    """Topic of a controller's markers (its desired path)."""
+    return f"/{controller}/{MARKERS_SUFFIX}"
 
 
 def layout_label(fields: Sequence[str]) -> str:

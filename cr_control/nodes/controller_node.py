@@ -68,7 +68,9 @@ from std_msgs.msg import Float64MultiArray, String
 
 from cr_control.core import cdr, topics
 from cr_control.nodes import sender_aware
+from cr_control.nodes.diagnostics import ControllerDiagnostics
 from cr_control.nodes.lockstep import ReaderPacer
+from cr_control.nodes.markers import ControllerMarkers
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS, TARGET_QOS
 from cr_control.nodes.raw_messages import (
     ARRAY_MAX_BYTES,
@@ -194,6 +196,9 @@ class ControllerNode(LifecycleNode):
         self._read_state, self._read_wrench = JointStateReader(), WrenchReader()
         self._read_sensors = ArrayReader()
         self._n_status = len(self.controller.status_fields)
+        self.diagnostics = ControllerDiagnostics(self, self.controller, scheme)   # /diagnostics
+        self.markers = ControllerMarkers(self, self.controller.reference_fields,   # ~/markers
+                                         self.controller.values.get("base_link", "world"))
         # Latched like the recorder's ready flag (READY_QOS: RELIABLE, TRANSIENT_LOCAL, 1).
         self.create_subscription(String, topics.PLANT_COMMAND_INTERFACE,
                                  quiet_on_shutdown(self, self._on_plant_interface), READY_QOS)
@@ -542,6 +547,8 @@ class ControllerNode(LifecycleNode):
 
         # -- messages out (timed; reported in the next published status) --
         out_start = time.perf_counter()
+        self.diagnostics.cycle(t, out_start - compute_start)
+        self.markers.cycle(t, out.reference)
         self._command.set_stamp(*stamp)
         self._command_out[:] = out.command
         self._command_bytes = self._command.message()

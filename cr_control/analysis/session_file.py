@@ -1,0 +1,388 @@
+"""A recorded session read from its MCAP file without ROS (:func:`load_session`): arrays
+per topic (joint states and commands, wrench, the controller's status and reference, the
+plant timing, every labelled array topic), the parameters saved by the recorder, message
+and publisher counts, and the stamps that go backwards or repeat (another run on the same
+ROS domain, or a restarted plant).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from array import array
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap_ros2.decoder import DecoderFactory
+
+from cr_control.core import ros_yaml, topics
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: What the MCAP readers raise on damaged or truncated data.
+_READ_ERRORS = (McapError, ValueError, EOFError, struct.error)
+PARAMETERS_PREFIX = "parameters/"
+
+
+#: Stamps this far (s) from a session's time zero are on another clock.
+DIFFERENT_CLOCK_S = 86_400.0
+#: Control topics (by role) that must have exactly one publisher, and the plant timing
+#: fields that count their publishers as the plant sees them.
+CONTROL_ROLES = ("joint_states", "joint_commands", "wrench")
+PUBLISHER_FIELDS = {"joint_states": "state_publishers", "joint_commands": "command_publishers"}
+
+_JOINT_STATE = "sensor_msgs/msg/JointState"
+_WRENCH = "geometry_msgs/msg/WrenchStamped"
+_ARRAY = "std_msgs/msg/Float64MultiArray"
+
+
+class SessionError(Exception):
+    """A file that cannot be analysed (missing, unreadable, not MCAP, no package topics)."""
+
+
+@dataclass
+class JointSeries:
+    """Joint values over time; ``NaN`` where a message carried no value."""
+
+    time: np.ndarray  #: header stamp (s), shape (n,)
+    names: list[str]
+    position: np.ndarray  #: shape (n, joints)
+    velocity: np.ndarray
+    effort: np.ndarray
+    #: Messages, in the order recorded, stamped before (after) or at the previous one.
+    stamps_backwards: int = 0
+    stamps_repeated: int = 0
+
+
+@dataclass
+class WrenchSeries:
+    """Measured contact wrench over time (world frame)."""
+
+    time: np.ndarray  #: header stamp (s)
+    force: np.ndarray  #: (n, 3) N
+    torque: np.ndarray  #: (n, 3) N m
+
+
+@dataclass
+class Session:
+    """One recording: arrays per topic, the controller's name and the saved parameters."""
+
+    path: Path
+    controller: str | None = None
+    #: field -> values of the controller's status / reference and of the plant timing.
+    status: dict[str, np.ndarray] = field(default_factory=dict)
+    reference: dict[str, np.ndarray] = field(default_factory=dict)
+    timing: dict[str, np.ndarray] = field(default_factory=dict)
+    #: Every labelled array topic (topic -> field -> values).
+    labelled: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    joint_states: JointSeries | None = None
+    joint_commands: JointSeries | None = None
+    wrench: WrenchSeries | None = None
+    #: node -> parameter -> value (from the ``parameters/<node>`` metadata records).
+    parameters: dict[str, dict[str, Any]] = field(default_factory=dict)
+    message_counts: dict[str, int] = field(default_factory=dict)
+    #: Publishers per control topic role (CONTROL_ROLES) the recorder saw when it
+    #: subscribed (the channels' ``offered_qos_profiles``), where the file says.
+    publishers: dict[str, int] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        """The controller's name, else the file stem."""
+        return self.controller or self.path.stem
+
+    @property
+    def t0(self) -> float:
+        """Time zero of the figures (s): the first stamp of the controller's status, else
+        of its reference, the joint states, the wrench or the joint commands."""
+        for stamps in (self.status.get("stamp"), self.reference.get("stamp"),
+                       *(s.time for s in (self.joint_states, self.wrench, self.joint_commands)
+                         if s is not None)):
+            if stamps is not None and len(stamps):
+                return float(stamps[0])
+        return 0.0
+
+    def relative_time(self, stamps: np.ndarray) -> np.ndarray:
+        """``stamps`` on the figures' time axis: from t0, unless they are on another clock.
+
+        (Stamps more than a day away from t0 are taken as already relative, e.g. a plant
+        timing stamped with time since start in a wall-clock session.)
+        """
+        t0 = self.t0
+        if len(stamps) and abs(float(stamps[0]) - t0) > DIFFERENT_CLOCK_S:
+            return stamps
+        return stamps - t0
+
+
+# -- reading -----------------------------------------------------------------------------
+
+def _type_name(schema: Schema | None) -> str:
+    """``pkg/msg/Type`` of a schema (also for ``pkg/Type`` names)."""
+    if schema is None:
+        return ""
+    parts = schema.name.split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else schema.name
+
+
+def _check_readable(path: Path) -> None:
+    if not path.exists():
+        raise SessionError(f"{path}: no such file")
+    if path.is_dir():
+        raise SessionError(f"{path}: is a directory, not an MCAP file")
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(len(MCAP_MAGIC))
+    except OSError as exc:
+        raise SessionError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if magic != MCAP_MAGIC:
+        raise SessionError(f"{path}: not an MCAP file")
+
+
+def _iter_messages(path: Path, warnings: list[str], metadata: dict[str, dict[str, str]],
+                   ) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """Messages in file order (filling ``metadata``); tolerates a file cut short."""
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        try:
+            summary = reader.get_summary()
+        except _READ_ERRORS:
+            summary = None
+        if summary is not None:
+            metadata.update({m.name: dict(m.metadata) for m in reader.iter_metadata()})
+            yield from reader.iter_messages(log_time_order=False)
+            return
+        # No summary (recording cut short): read linearly as far as the data goes.
+        f.seek(0)
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        count = 0
+        try:
+            for record in StreamReader(f, skip_magic=False).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    channel = channels[record.channel_id]
+                    count += 1
+                    yield schemas.get(channel.schema_id), channel, record
+                elif isinstance(record, Metadata):
+                    metadata[record.name] = dict(record.metadata)
+        except _READ_ERRORS as exc:
+            warnings.append(f"file ends early ({exc}); read {count} messages")
+
+
+def _stamp(msg: Any) -> float:
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+
+class _Rows:
+    """Fixed-width float rows stored compactly, with a time column to sort by.
+
+    Counts, in the order rows are added, times that go backwards or repeat.
+    """
+
+    def __init__(self, width: int) -> None:
+        self.width = width
+        self.time = array("d")
+        self.values = array("d")
+        self.backwards = 0
+        self.repeated = 0
+
+    def add(self, time: float, row: Sequence[float]) -> None:
+        if self.time:
+            self.backwards += time < self.time[-1]
+            self.repeated += time == self.time[-1]
+        self.time.append(time)
+        self.values.extend(row)
+
+    def sorted(self) -> tuple[np.ndarray, np.ndarray]:
+        """(time, rows) in time order (stable)."""
+        time = np.array(self.time)
+        rows = np.array(self.values).reshape(len(time), self.width)
+        order = np.argsort(time, kind="stable")
+        return time[order], rows[order]
+
+
+class _LabelledTopic:
+    """A labelled Float64MultiArray topic: the rows that carry its first label."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self.fields = topics.fields_of(label)
+        self.rows = _Rows(len(self.fields))
+
+    def add(self, msg: Any) -> None:
+        if msg.layout.dim and msg.layout.dim[0].label == self.label and len(
+                msg.data) == len(self.fields):
+            self.rows.add(msg.data[0], msg.data)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        _, table = self.rows.sorted()
+        return {name: table[:, i] for i, name in enumerate(self.fields)}
+
+
+class _JointTopic:
+    """A JointState topic; joints named by its first message, NaN where values are absent."""
+
+    KEYS = ("position", "velocity", "effort")
+
+    def __init__(self, names: Sequence[str]) -> None:
+        self.names = list(names)
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.rows = _Rows(3 * len(self.names))
+
+    def add(self, msg: Any) -> None:
+        n = len(self.names)
+        row = [math.nan] * (3 * n)
+        same = list(msg.name) == self.names
+        columns = range(n) if same else [self.index.get(name) for name in msg.name]
+        for k, key in enumerate(self.KEYS):
+            values = getattr(msg, key)
+            if len(values) == len(columns):
+                for column, value in zip(columns, values, strict=True):
+                    if column is not None:
+                        row[k * n + column] = value
+        self.rows.add(_stamp(msg), row)
+
+    def series(self) -> JointSeries:
+        time, table = self.rows.sorted()
+        n = len(self.names)
+        return JointSeries(time, self.names,
+                           *(table[:, k * n:(k + 1) * n] for k in range(len(self.KEYS))),
+                           stamps_backwards=self.rows.backwards,
+                           stamps_repeated=self.rows.repeated)
+
+
+class _WrenchTopic:
+    def __init__(self) -> None:
+        self.rows = _Rows(6)
+
+    def add(self, msg: Any) -> None:
+        f, t = msg.wrench.force, msg.wrench.torque
+        self.rows.add(_stamp(msg), (f.x, f.y, f.z, t.x, t.y, t.z))
+
+    def series(self) -> WrenchSeries:
+        time, table = self.rows.sorted()
+        return WrenchSeries(time, table[:, :3], table[:, 3:])
+
+
+def _accumulator(kind: str, msg: Any) -> Any:
+    """The accumulator for a topic, from its type and first message (None: not used)."""
+    if kind == _JOINT_STATE:
+        return _JointTopic(msg.name)
+    if kind == _WRENCH:
+        return _WrenchTopic()
+    if msg.layout.dim and topics.fields_of(msg.layout.dim[0].label)[:1] == ["stamp"]:
+        return _LabelledTopic(msg.layout.dim[0].label)
+    return None
+
+
+def _parse_value(text: str) -> Any:
+    try:
+        return ros_yaml.load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def _publisher_count(channel: Channel) -> int | None:
+    """Publishers of a recorded channel: entries of its ``offered_qos_profiles`` (rosbag2
+    writes one per publisher it matched), None if the file does not say."""
+    text = channel.metadata.get("offered_qos_profiles", "")
+    try:
+        offered = ros_yaml.load(text) if text.strip() else None
+    except yaml.YAMLError:
+        return None
+    return len(offered) if isinstance(offered, list) and offered else None
+
+
+def load_session(path: str | Path) -> Session:
+    """Read a recorded session; raises :class:`SessionError` for files it cannot use."""
+    path = Path(path)
+    _check_readable(path)
+    session = Session(path)
+    metadata: dict[str, dict[str, str]] = {}
+    factory = DecoderFactory()
+    accumulators: dict[str, Any] = {}
+    publishers: dict[str, int] = {}  # topic -> publishers over its channels
+    channels_seen: set[int] = set()
+    try:
+        for schema, channel, message in _iter_messages(path, session.warnings, metadata):
+            topic = channel.topic
+            session.message_counts[topic] = session.message_counts.get(topic, 0) + 1
+            if channel.id not in channels_seen:
+                channels_seen.add(channel.id)
+                count = _publisher_count(channel)
+                if count is not None:
+                    publishers[topic] = publishers.get(topic, 0) + count
+            kind = _type_name(schema)
+            if kind not in (_JOINT_STATE, _WRENCH, _ARRAY) or accumulators.get(
+                    topic, True) is None:
+                continue
+            decoder = factory.decoder_for(channel.message_encoding, schema)
+            if decoder is None:
+                continue
+            try:
+                msg = decoder(message.data)
+            except Exception as exc:  # a corrupt message must not end the analysis
+                session.warnings.append(f"{topic}: undecodable message skipped ({exc})")
+                continue
+            if topic not in accumulators:
+                accumulators[topic] = _accumulator(kind, msg)
+            if accumulators[topic] is not None:
+                accumulators[topic].add(msg)
+    except (*_READ_ERRORS, OSError) as exc:
+        raise SessionError(f"{path}: unreadable MCAP file ({exc})") from exc
+
+    for topic, acc in accumulators.items():
+        if isinstance(acc, _LabelledTopic):
+            session.labelled[topic] = acc.columns()
+        elif isinstance(acc, _WrenchTopic):
+            if session.wrench is None or topic == topics.WRENCH:
+                session.wrench = acc.series()
+                _note_publishers(session, "wrench", publishers.get(topic))
+        elif isinstance(acc, _JointTopic):
+            for role in ("joint_commands", "joint_states"):
+                if topic == f"/{role}" or topic.endswith(f"/{role}"):
+                    setattr(session, role, acc.series())
+                    _note_publishers(session, role, publishers.get(topic))
+                    break
+
+    session.timing = session.labelled.get(topics.PLANT_TIMING, {})
+    for role, name in PUBLISHER_FIELDS.items():
+        counts = session.timing.get(name)
+        if counts is not None and np.isfinite(counts).any():
+            _note_publishers(session, role, int(np.nanmax(counts)))
+    suffix = f"/{topics.STATUS_SUFFIX}"
+    controllers = sorted(t[1:-len(suffix)] for t in session.labelled
+                         if t.endswith(suffix) and t != topics.PLANT_TIMING)
+    if controllers:
+        session.controller = controllers[0]
+        session.status = session.labelled[topics.status_topic(controllers[0])]
+        session.reference = session.labelled.get(topics.reference_topic(controllers[0]), {})
+        if len(controllers) > 1:
+            session.warnings.append(f"several controllers {controllers}; analysing "
+                                    f"{controllers[0]}")
+    for name, values in metadata.items():
+        if name.startswith(PARAMETERS_PREFIX):
+            session.parameters[name[len(PARAMETERS_PREFIX):]] = {
+                key: _parse_value(text) for key, text in values.items()}
+
+    if not (session.labelled or session.joint_states or session.joint_commands
+            or session.wrench):
+        found = ", ".join(sorted(session.message_counts)) or "no messages"
+        raise SessionError(f"{path}: none of cr_control's topics in this recording ({found})")
+    return session
+
+
+def _note_publishers(session: Session, role: str, count: int | None) -> None:
+    """Keep the largest publisher count known for ``role``."""
+    if count is not None:
+        session.publishers[role] = max(count, session.publishers.get(role, 0))

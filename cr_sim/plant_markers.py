@@ -1,0 +1,104 @@
+"""The plant's scene markers on ``/plant/markers`` (issue 22; :mod:`cr_control.nodes.markers`).
+
+Every ~33 ms of simulated time (real time: wall time; lockstep: the simulation's), from the
+plant's true state (:mod:`cr_sim.scene`): the surface or constraint (``surface``), the
+links as a line strip (``links``), a trail of the actual tip (``tip_path``), the moving
+object and its constraint line where there is one (``object``), and the contact force on
+the tip as an arrow of :data:`FORCE_SCALE` m per N (``contact_force``).
+"""
+
+from __future__ import annotations
+
+from rclpy.node import Node
+from visualization_msgs.msg import Marker
+
+from cr_control.core import topics
+from cr_control.nodes.markers import (
+    BLUE,
+    GREEN,
+    GREY,
+    RED,
+    MarkerPublisher,
+    Trail,
+    arrow,
+    line_strip,
+    point,
+    solid,
+)
+from cr_sim.scene import Shape, scene_of
+
+#: Length of the contact-force arrow per newton (m/N): 10 N draws 0.1 m.
+FORCE_SCALE = 0.01
+#: Forces below this (N) draw no arrow (a zero-length arrow is deleted instead).
+FORCE_MIN_N = 1e-3
+#: The fixed shapes (surface) go out with every this many publishes (2 Hz): a viewer keeps
+#: them meanwhile, and a circle's 73 points are not re-sent 30 times a second.
+SURFACE_EVERY = 15
+
+
+def shape_marker(ns: str, frame: str, shape: Shape, rgba, mid: int = 0) -> Marker:
+    """A :class:`~cr_sim.scene.Shape` as a marker."""
+    if shape.kind == "line":
+        return line_strip(ns, frame, shape.points, 0.004, rgba, mid)
+    kind = Marker.SPHERE if shape.kind == "sphere" else Marker.CUBE
+    return solid(ns, kind, frame, shape.centre, shape.size, rgba, shape.quaternion, mid)
+
+
+class PlantMarkers:
+    """Builds and publishes the plant's markers when due (:meth:`tick`, per published state)."""
+
+    def __init__(self, node: Node, plant) -> None:
+        self.scene = scene_of(plant)
+        # The arm's base link (what a task-space controller's markers use too), else the
+        # plant's frame.
+        frame = getattr(plant, "base_frame", None) or (
+            node.get_parameter("base_link").value if node.has_parameter("base_link")
+            else plant.wrench_frame)
+        self.frame = frame
+        self.pub = MarkerPublisher(node, topics.PLANT_MARKERS)
+        #: The simulated time from which the next publish is due (inf: never, no scene).
+        self.next_t = self.pub.next_t if self.scene is not None else float("inf")
+        scene = self.scene
+        self.fixed = ([shape_marker("surface", frame, s, GREY, i) for i, s in enumerate(scene.shapes)]
+                      if scene is not None else [])
+        self.trail = Trail("tip_path", frame, 0.004, GREEN)
+        # Made once, refilled per publish (a Marker costs ~50 us to construct).
+        self.links = line_strip("links", frame, [], 0.012, BLUE)
+        self.force = arrow("contact_force", frame, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), RED)
+        self.no_force = Marker(ns="contact_force", id=0, action=Marker.DELETE)
+        self.no_force.header.frame_id = frame
+        self._moving: list[Marker] = []
+
+    def _moving_markers(self, shapes: list[Shape]) -> list[Marker]:
+        """The moving shapes' markers, made at the first publish and refilled after."""
+        if len(self._moving) != len(shapes):
+            self._moving = [shape_marker("object", self.frame, s, GREY, i) for i, s in enumerate(shapes)]
+            return self._moving
+        for m, s in zip(self._moving, shapes, strict=True):
+            if s.kind == "line":
+                m.points = [point(p) for p in s.points]
+            else:
+                m.pose.position = point(s.centre)
+        return self._moving
+
+    def tick(self, t: float, sec: int, nanosec: int) -> None:
+        """Per published state (``t``: simulated time, s): publish if due. Hot path."""
+        if t < self.next_t or not self.pub.due(t):
+            return
+        self.next_t = self.pub.next_t
+        scene = self.scene
+        scene.update()
+        tip = scene.tip()
+        self.links.points = [point(p) for p in scene.links()]
+        markers = [*self.fixed] if self.pub.published % SURFACE_EVERY == 0 else []
+        markers.append(self.links)
+        markers += self._moving_markers(scene.moving_shapes())
+        if tip is not None:
+            markers.append(self.trail.add(tip))
+            f = scene.force()
+            if float(f @ f) > FORCE_MIN_N ** 2:
+                self.force.points = [point(tip), point(tip + FORCE_SCALE * f)]
+                markers.append(self.force)
+            else:
+                markers.append(self.no_force)
+        self.pub.send(markers, sec, nanosec)
