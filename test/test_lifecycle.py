@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from ros_probe import next_domain, start_node, stop_node
 
-from cr_control.analysis.analyze import load_session
+from cr_control.analysis.analyze import load_session, metrics
 from cr_control.schemes.registry import controller_class
-from cr_control.tools.session import Session, SessionConfig, SessionError
+from cr_control.tools.session import Session, SessionConfig, SessionError, analyse
 
 SWITCH = ("adaptive_impedance", "robust_adaptive_impedance")
 
@@ -152,6 +152,14 @@ def _check_switch(result, session, at: float) -> None:
 def test_live_switch_lockstep(tmp_path):
     result, session = switch_session(tmp_path, "lockstep", 2.0, 1.0)
     _check_switch(result, session, 1.0)
+    # The analysis follows the switch: both laws' status joined, the switch time stated.
+    m = metrics(session)
+    assert m["controller"] == "adaptive_impedance -> robust_adaptive_impedance"
+    assert abs(m["switch_to_robust_adaptive_impedance_at_s"] - 1.0) < 0.2
+    assert len(session.status["stamp"]) == 2000 and np.all(np.diff(session.status["stamp"]) > 0)
+    lines: list[str] = []
+    analyse(result, progress=lines.append)               # what cr_session prints, and plots
+    assert any("plots:" in line for line in lines)
     # lockstep answers every state: the switch costs wall time, not simulated cycles
     assert len(session.joint_commands.time) == len(session.joint_states.time) == 2000
 

@@ -62,7 +62,9 @@ def metrics(session: Session) -> dict[str, Any]:
     plant timing message (whole-run totals) plus the mean of the per-second rates. Parts
     missing from the recording are absent from the result.
     """
-    out: dict[str, Any] = {"controller": session.controller or "-"}
+    out: dict[str, Any] = {"controller": " -> ".join(session.controllers) or "-"}
+    for t, name in session.switches:
+        out[f"switch_to_{name}_at_s"] = float(t - session.status["stamp"][0])
     status = session.status
     if len(status.get("stamp", ())):
         t = status["stamp"]

@@ -92,6 +92,11 @@ class Session:
     #: subscribed (the channels' ``offered_qos_profiles``), where the file says.
     publishers: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    #: Controllers in the order they ran; more than one: a live switch (cr_session
+    #: --switch-to), whose status/reference are joined on their common fields.
+    controllers: list[str] = field(default_factory=list)
+    #: (stamp of its first status, controller) for each controller after the first.
+    switches: list[tuple[float, str]] = field(default_factory=list)
 
     @property
     def name(self) -> str:
@@ -364,12 +369,7 @@ def load_session(path: str | Path) -> Session:
     controllers = sorted(t[1:-len(suffix)] for t in session.labelled
                          if t.endswith(suffix) and t != topics.PLANT_TIMING)
     if controllers:
-        session.controller = controllers[0]
-        session.status = session.labelled[topics.status_topic(controllers[0])]
-        session.reference = session.labelled.get(topics.reference_topic(controllers[0]), {})
-        if len(controllers) > 1:
-            session.warnings.append(f"several controllers {controllers}; analysing "
-                                    f"{controllers[0]}")
+        _pick_controllers(session, controllers)
     for name, values in metadata.items():
         if name.startswith(PARAMETERS_PREFIX):
             session.parameters[name[len(PARAMETERS_PREFIX):]] = {
@@ -386,3 +386,35 @@ def _note_publishers(session: Session, role: str, count: int | None) -> None:
     """Keep the largest publisher count known for ``role``."""
     if count is not None:
         session.publishers[role] = max(count, session.publishers.get(role, 0))
+
+
+def _join(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Labelled arrays of consecutive controllers as one: their common fields, in time order."""
+    common = [f for f in parts[0] if all(f in part for part in parts[1:])]
+    return {f: np.concatenate([part[f] for part in parts]) for f in common}
+
+
+def _pick_controllers(session: Session, names: list[str]) -> None:
+    """The controller(s) whose status is analysed. Several whose statuses follow one another
+    in time (a live switch: each one's first status after the previous one's last) are
+    joined; several at once (a rogue second controller) are warned about, the first kept."""
+    statuses = {n: session.labelled[topics.status_topic(n)] for n in names}
+    ordered = sorted(names, key=lambda n: statuses[n]["stamp"][0] if len(statuses[n]["stamp"])
+                     else np.inf)
+    spans = [(statuses[n]["stamp"][0], statuses[n]["stamp"][-1]) for n in ordered
+             if len(statuses[n]["stamp"])]
+    switched = len(spans) == len(ordered) > 1 and all(
+        later[0] > earlier[1] for earlier, later in zip(spans, spans[1:], strict=False))
+    session.controller = ordered[0] if switched else names[0]
+    if not switched:
+        session.controllers = [names[0]]
+        session.status = statuses[names[0]]
+        session.reference = session.labelled.get(topics.reference_topic(names[0]), {})
+        if len(names) > 1:
+            session.warnings.append(f"several controllers {names}; analysing {names[0]}")
+        return
+    session.controllers = ordered
+    session.switches = [(float(statuses[n]["stamp"][0]), n) for n in ordered[1:]]
+    session.status = _join([statuses[n] for n in ordered])
+    session.reference = _join([session.labelled.get(topics.reference_topic(n), {"stamp": np.zeros(0)})
+                               for n in ordered])
