@@ -18,6 +18,13 @@ an unknown robot holds still.
 Targets: :meth:`TaskSpaceController.set_target_pose` and :meth:`set_target_wrench` (the
 node's ``~/target_pose`` and ``~/target_wrench``) take effect from the next cycle
 (:mod:`cr_control.schemes.blocks.references`).
+
+Wrist sensor (issue 24): with ``sensor_frame``, ``tool_mass``, ``ft_bias`` or
+``zero_ft_at_start`` set, the wrench given to :meth:`compute` (force, or force and torque, in
+the sensor frame) becomes the contact force in the base frame, f = R_S (F_S - b_F) - m g,
+before the law sees it; :meth:`zero_ft` zeroes the bias
+(:mod:`cr_control.schemes.blocks.wrist_sensor`). Without them the force goes to the law as
+given, bit for bit.
 """
 
 from __future__ import annotations
@@ -29,7 +36,7 @@ import numpy as np
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError, resolve
-from cr_control.schemes.blocks import references
+from cr_control.schemes.blocks import references, wrist_sensor
 from cr_control.schemes.blocks.references import TARGETS, reference_gains, reference_state
 from cr_control.schemes.blocks.task_space import (
     NULL_SPACE_GAINS,
@@ -120,8 +127,9 @@ class TaskSpaceController(Controller):
         own = {"joint_names": JOINT_NAMES, "max_effort": max_effort_on(
             next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model)}
         common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
-        return (common + cls.robot_parameters() + cls.reference_parameters(model.m, thesis)
-                + NULL_SPACE_PARAMETERS + cls.law_parameters(model, thesis))
+        return (common + cls.robot_parameters() + wrist_sensor.PARAMETERS
+                + cls.reference_parameters(model.m, thesis) + NULL_SPACE_PARAMETERS
+                + cls.law_parameters(model, thesis))
 
     @classmethod
     def reference_parameters(cls, m: int, thesis: bool) -> list[Param]:
@@ -196,6 +204,12 @@ class TaskSpaceController(Controller):
         self.targets[TARGETS.offset("quaternion")] = 1.0
         self._output = KernelOutput(self)
         self._kernel = type(self).kernel
+        self._new_wrist_sensor()
+
+    def _new_wrist_sensor(self) -> None:
+        """The wrist sensor's compensation and zeroing state, as at start."""
+        self.wrist = wrist_sensor.WristSensor(self.values, self.model)
+        self.wrist.log = lambda message: self.log_info(f"{self.scheme}: {message}")
 
     def status_field_names(self) -> list[str]:
         return self._status
@@ -239,6 +253,24 @@ class TaskSpaceController(Controller):
             "posture_given": float(len(posture) > 0)}, common.view(self.gains, "reference"))
         self.pack_law_gains(self.gains[common.size:])
 
+    @property
+    def reads_wrench(self) -> bool:
+        """True if the law is given the sensor's force and torque (a wrist sensor to
+        compensate), False if the force alone (the ideal sensor)."""
+        return self.wrist.active
+
+    def zero_ft(self) -> tuple[bool, str]:
+        """Start zeroing the wrist sensor (``~/zero_ft``): (accepted, message)."""
+        desired = None
+        if self._last is not None and "f_d_x" in self.reference_fields:
+            i = self.reference_fields.index("f_d_x") - 1
+            desired = self._last.reference[i:i + self.model.m]
+        return self.wrist.request_zero(desired)
+
+    def warm_up(self) -> None:
+        super().warm_up()
+        self._new_wrist_sensor()    # the throw-away state must not start its zeroing
+
     def pack_law_gains(self, out: np.ndarray) -> None:
         """Pack the scheme's own gains into ``out`` (default: law_gains_layout by name)."""
         self.law_gains.pack(self.law_gain_values(), out)
@@ -261,6 +293,8 @@ class TaskSpaceController(Controller):
     # -- the cycle ---------------------------------------------------------------------------------
     def compute(self, t, dt, q, v, force) -> ControlOutput:
         out = self._output.new()
+        if self.wrist.active:
+            force = self.wrist.compensate(t, q, v, force)
         self._kernel(self.model.chain, self.gains, self.internal, self.targets, t, dt, q, v,
                      force, out)
         return self._output.views(out)
