@@ -54,7 +54,8 @@ ROS parameters (all read-only, read at start):
 - ``topics`` (string array): topics to record. Default: joint states, wrench, joint
   commands, ``/clock``, plant timing, ``/parameter_events``.
 - ``optional_topics`` (string array): topics recorded whenever they appear but never
-  waited for. Default ``['/clock']`` (published only in lockstep mode).
+  waited for. Default ``/clock`` (published only in lockstep mode), ``/plant/sensors`` and
+  ``/plant/contact_wrench`` (published by the plants that have them).
 - ``parameter_nodes`` (string array): nodes whose parameters are saved. Default empty:
   every node in the graph when ready, except this one.
 - ``ready_timeout`` (double, s): how long to wait for the topics before declaring ready
@@ -130,7 +131,7 @@ DEFAULT_TOPICS = [
     topics.PLANT_TIMING,
     topics.PARAMETER_EVENTS,
 ]
-DEFAULT_OPTIONAL_TOPICS = [topics.CLOCK, topics.PLANT_SENSORS]
+DEFAULT_OPTIONAL_TOPICS = [topics.CLOCK, topics.PLANT_SENSORS, topics.CONTACT_WRENCH]
 
 #: Reader history of the recorder's subscriptions: KEEP_ALL, so that a chunk compression
 #: or a scheduling hiccup on a busy machine never overwrites messages that arrived but

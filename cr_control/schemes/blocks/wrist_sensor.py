@@ -85,9 +85,10 @@ PARAMETERS = [
     Param("ft_bias", [0.0] * 6, "The sensor's bias at start, sensor frame: fx, fy, fz (N), "
           "tx, ty, tz (N m); ~/zero_ft replaces it.", "vector", 6, read_only=True,
           bound=Bound.FORCE),
-    Param("zero_ft_at_start", False, "Zero the sensor on the first state (the task starts "
-          "touching at zero force or in the air): the first reading at once, then the "
-          f"average of its first {ZERO_START_WINDOW_S:g} s blended in.", "bool", read_only=True),
+    Param("zero_ft_at_start", False, "Zero the sensor on the first states (the task starts "
+          "touching at zero force, or in the air, and still): the bias is the average over the "
+          f"{ZERO_START_WINDOW_S:g} s after the first reading, the law is given zero force "
+          "until then.", "bool", read_only=True),
 ]
 NAMES = tuple(p.name for p in PARAMETERS)
 
