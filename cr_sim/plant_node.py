@@ -225,7 +225,11 @@ def initial_command(plant: Plant) -> np.ndarray:
         return np.array(held, dtype=float)
     if plant.command_interface == "position":
         return np.array(plant.measurement().position, dtype=float)
-    gravity = plant.gravity_torque(plant.measurement().position)
+    # a plant's noise-free position where it has one: no noise drawn (the offline loop draws
+    # none here, so lockstep stays bit for bit with a noisy sensor)
+    true_position = getattr(plant, "true_position", None)
+    position = true_position() if callable(true_position) else plant.measurement().position
+    gravity = plant.gravity_torque(np.asarray(position, dtype=float))
     if gravity is not None and gravity.shape == (n,) and np.all(np.isfinite(gravity)):
         return gravity
     return np.zeros(n)

@@ -12,9 +12,14 @@ reads, in S, the contact wrench plus the tool's weight plus a bias (the plant's 
   frame and R_nS the constant placement of S on it (S must ride on the tip's body);
 - F_S: the measured force (S), b_F the force bias (S), m = ``tool_mass``, g = ``gravity``.
 
-Neglected: the tool's inertial wrench m a_c (and the gyroscopic torque). At the wiping task's
-speeds (a 5 cm circle at 1 rad/s, orientation held) |a_c| = r w^2 = 0.05 m/s^2: 0.035 N on the
-0.7 kg tool, 0.35 % of the 10 N pressed; a_c = 1.4 m/s^2 would be needed for 1 N.
+Neglected by default: the tool's inertial force m a_c (a_c the classical acceleration of its
+centre of mass; the torque is not used by the law). At the wiping task's speeds (a 5 cm
+circle at 1 rad/s, orientation held) |a_c| = r w^2 = 0.05 m/s^2: 0.035 N on the 0.7 kg
+tool, 0.35 % of the 10 N pressed; a_c = 1.4 m/s^2 would be needed for 1 N. With
+``tool_acceleration_compensation`` it is added, f += m a_c, a_c by the backward difference
+of the centre of mass's velocity J_c(q) q' between cycles (:func:`com_velocity`; checked
+against the simulated sensor's exact a_c to 0.1 m/s^2 during the NN law's start, where the
+tool falls at 10 m/s^2); off by default because it differences the joint-velocity noise.
 The law takes the force only; the torque enters the bias and the tool identification:
 T_S = c x (m R_S^T g) + b_T + (contact torque), c = ``tool_com`` (S).
 
@@ -36,13 +41,17 @@ move during the window or the new force bias differs from the old by more than
 ZERO_MAX_FORCE. A contact lighter than ZERO_MAX_FORCE cannot be told from a bias by the
 sensor alone: zero with the tool in the air (or touching at zero force).
 
-At start-up (``zero_ft_at_start``, for a task that starts touching at zero force, such as
-the robots' wiping task): the bias is the average of W_S - w over the ZERO_START_WINDOW_S
-(50 ms) after the first reading, and the law is given f = 0 until then (the premise:
-touching at zero force); the first reading itself is left out (it is taken before any
-command holds the arm: the tool's inertial wrench is in it, 7 N on the simulated Panda).
-The window is short because the wiping task's desired force ramps in from the first state
-(0.5 N after 50 ms).
+At start-up (``zero_ft_at_start``, for a task that starts still, touching at zero force
+or in the air, such as the robots' wiping task): the controller first holds the arm still
+(:attr:`WristSensor.holding`: gravity compensation from the URDF model with the tool, what a
+robot's driver does before a controller takes over) while the bias is averaged over the
+ZERO_START_WINDOW_S (30 ms) after the first reading; the law starts when it ends, its clock
+from zero then (:attr:`WristSensor.law_start`), its command blended in from G(q) over
+HOLD_BLEND_S (50 ms, smoothstep). The first reading is left out: it may be
+taken before any command held the arm (the simulator's is, with the tool's inertial wrench
+of a zero torque in it). Zeroing while the law already runs instead carries its start
+transient: measured on the Panda's wiping task, whose path starts at 5 cm/s, 0.65 N of the
+normal force ended up in the bias.
 
 Cost: one compiled call per cycle, the rotation pass over n joints and (1), (2): measured
 in test/test_wrist_compensation.py's micro-timing (printed).
@@ -57,12 +66,24 @@ import pinocchio as pin
 from numba import njit
 
 from cr_control.core.parameters import Bound, Param, ParameterError
-from cr_control.models.spatial_chain import AXIS, HEADER, KIND, PER_JOINT, PRISMATIC_KIND, ROT
+from cr_control.models.spatial_chain import (
+    AXIS,
+    HEADER,
+    KIND,
+    PER_JOINT,
+    POS,
+    PRISMATIC_KIND,
+    ROT,
+)
 
 #: Averaging window of a zeroing (s).
 ZERO_WINDOW_S = 0.2
 #: Averaging window of the start-up zeroing (s).
-ZERO_START_WINDOW_S = 0.01
+ZERO_START_WINDOW_S = 0.03
+#: After the start-up hold the law's command is blended in from G(q) over this time (s):
+#: the law's first command differs from the URDF model's G(q) by its model error (4.2 N m
+#: on the Panda for the robust scheme's 10 %-light model), a jump otherwise.
+HOLD_BLEND_S = 0.05
 #: A new bias is blended in over this time (s), by (2).
 ZERO_BLEND_S = 0.5
 #: "Still": joint speed |q'| (Euclidean, rad/s) at most this during a zeroing.
@@ -85,16 +106,25 @@ PARAMETERS = [
     Param("ft_bias", [0.0] * 6, "The sensor's bias at start, sensor frame: fx, fy, fz (N), "
           "tx, ty, tz (N m); ~/zero_ft replaces it.", "vector", 6, read_only=True,
           bound=Bound.FORCE),
-    Param("zero_ft_at_start", False, "Zero the sensor on the first states (the task starts "
-          "touching at zero force, or in the air, and still): the bias is the average over the "
-          f"{ZERO_START_WINDOW_S:g} s after the first reading, the law is given zero force "
-          "until then.", "bool", read_only=True),
+    Param("tool_acceleration_compensation", False, "Also add m a_c to the contact force, a_c "
+          "the tool's centre-of-mass acceleration by the backward difference of its velocity "
+          "from the measured joint velocities (for motions of metres per second squared; it "
+          "differences velocity noise: 1e-3 rad/s on an 0.8 m arm is ~1 m/s^2, 0.7 N on a "
+          "0.7 kg tool).", "bool", read_only=True),
+    Param("zero_ft_at_start", False, "Zero the sensor at start (the task starts still, "
+          "touching at zero force or in the air): the arm is held still by gravity "
+          f"compensation while the sensor is averaged over {ZERO_START_WINDOW_S:g} s, then "
+          "the law starts.", "bool", read_only=True),
 ]
 NAMES = tuple(p.name for p in PARAMETERS)
 
 #: Layout of the packed compensation ``comp``: [m, g (3), R_nS (9, row-major), b_0 (6),
-#: b_1 (6), t_b, T_b].
-MASS_AT, G_AT, RNS_AT, B0_AT, B1_AT, TB_AT, TBLEND_AT, COMP_SIZE = 0, 1, 4, 13, 19, 25, 26, 27
+#: b_1 (6), t_b, T_b, p_nc (3: the tool's centre of mass in the last joint's frame),
+#: v_c (3: its last velocity, base frame), t of v_c, inertial (1: compensate m a_c)].
+MASS_AT, G_AT, RNS_AT, B0_AT, B1_AT, TB_AT, TBLEND_AT = 0, 1, 4, 13, 19, 25, 26
+PNC_AT, VC_AT, TVC_AT, INERTIAL_AT, COMP_SIZE = 27, 30, 33, 34, 35
+#: Longest step (s) the tool's acceleration is differenced over; beyond it a_c = 0.
+MAX_DIFFERENCE_S = 0.01
 
 
 @njit(cache=True, error_model="numpy")
@@ -134,6 +164,74 @@ def sensor_rotation_into(chain, R_nS, q, R):
 
 
 @njit(cache=True, error_model="numpy")
+def com_velocity(chain, p_nc, q, v):
+    """v_c = sum_i J_c,i q'_i (base frame): the velocity of the point p_nc of the last
+    joint's body (revolute: z_i x (p_c - p_i), prismatic: z_i), by the forward pass
+    R_i = R_{i-1} R^pl_i E_i(q_i), p_i = p_{i-1} + R_{i-1} p^pl_i (+ z_i q_i)."""
+    n = int(chain[0])
+    R = np.empty(9)
+    b = np.empty(9)
+    p = np.zeros(3)
+    for r in range(9):
+        R[r] = 1.0 if r % 4 == 0 else 0.0
+    zs = np.empty((n, 3))
+    ps = np.empty((n, 3))
+    prismatic = np.empty(n)
+    for i in range(n):
+        k = HEADER + PER_JOINT * i
+        px, py, pz = chain[k + POS], chain[k + POS + 1], chain[k + POS + 2]
+        p0 = p[0] + R[0] * px + R[1] * py + R[2] * pz
+        p1 = p[1] + R[3] * px + R[4] * py + R[5] * pz
+        p2 = p[2] + R[6] * px + R[7] * py + R[8] * pz
+        for r in range(3):
+            a0, a1, a2 = R[3 * r], R[3 * r + 1], R[3 * r + 2]
+            for c in range(3):
+                b[3 * r + c] = (a0 * chain[k + ROT + c] + a1 * chain[k + ROT + 3 + c]
+                                + a2 * chain[k + ROT + 6 + c])
+        ax, ay, az = chain[k + AXIS], chain[k + AXIS + 1], chain[k + AXIS + 2]
+        zx = b[0] * ax + b[1] * ay + b[2] * az
+        zy = b[3] * ax + b[4] * ay + b[5] * az
+        zz = b[6] * ax + b[7] * ay + b[8] * az
+        zs[i, 0], zs[i, 1], zs[i, 2] = zx, zy, zz
+        if chain[k + KIND] == PRISMATIC_KIND:
+            prismatic[i] = 1.0
+            p0 += zx * q[i]
+            p1 += zy * q[i]
+            p2 += zz * q[i]
+            R[:] = b
+        else:
+            prismatic[i] = 0.0
+            c, s = math.cos(q[i]), math.sin(q[i])
+            t = 1.0 - c
+            e00, e01, e02 = c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay
+            e10, e11, e12 = t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax
+            e20, e21, e22 = t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az
+            for r in range(3):
+                b0, b1, b2 = b[3 * r], b[3 * r + 1], b[3 * r + 2]
+                R[3 * r] = b0 * e00 + b1 * e10 + b2 * e20
+                R[3 * r + 1] = b0 * e01 + b1 * e11 + b2 * e21
+                R[3 * r + 2] = b0 * e02 + b1 * e12 + b2 * e22
+        p[0], p[1], p[2] = p0, p1, p2
+        ps[i, 0], ps[i, 1], ps[i, 2] = p0, p1, p2
+    cx = p[0] + R[0] * p_nc[0] + R[1] * p_nc[1] + R[2] * p_nc[2]
+    cy = p[1] + R[3] * p_nc[0] + R[4] * p_nc[1] + R[5] * p_nc[2]
+    cz = p[2] + R[6] * p_nc[0] + R[7] * p_nc[1] + R[8] * p_nc[2]
+    vx = vy = vz = 0.0
+    for i in range(n):
+        zx, zy, zz = zs[i, 0], zs[i, 1], zs[i, 2]
+        if prismatic[i] != 0.0:
+            vx += zx * v[i]
+            vy += zy * v[i]
+            vz += zz * v[i]
+        else:
+            dx, dy, dz = cx - ps[i, 0], cy - ps[i, 1], cz - ps[i, 2]
+            vx += (zy * dz - zz * dy) * v[i]
+            vy += (zz * dx - zx * dz) * v[i]
+            vz += (zx * dy - zy * dx) * v[i]
+    return vx, vy, vz
+
+
+@njit(cache=True, error_model="numpy")
 def blend(x):
     """s(x) = 3x^2 - 2x^3 on [0, 1], 0 below, 1 above (2)."""
     if x <= 0.0:
@@ -144,9 +242,11 @@ def blend(x):
 
 
 @njit(cache=True, error_model="numpy")
-def compensate_into(chain, comp, t, q, wrench, R, bias, force):
+def compensate_into(chain, comp, t, q, v, wrench, R, bias, force):
     """(1) with the bias of (2) at t: ``force`` (3, base frame) from ``wrench`` (force and
-    torque, S); also writes R_S (9) into ``R`` and the bias in use (6) into ``bias``."""
+    torque, S); also writes R_S (9) into ``R`` and the bias in use (6) into ``bias``. With
+    ``comp``'s inertial flag, plus m a_c (3), a_c the backward difference of the tool's
+    centre-of-mass velocity (:func:`com_velocity`) since the last call."""
     sensor_rotation_into(chain, comp[RNS_AT:RNS_AT + 9], q, R)
     T = comp[TBLEND_AT]
     s = blend((t - comp[TB_AT]) / T) if T > 0.0 else 1.0
@@ -156,10 +256,18 @@ def compensate_into(chain, comp, t, q, wrench, R, bias, force):
     fx, fy, fz = wrench[0] - bias[0], wrench[1] - bias[1], wrench[2] - bias[2]
     for r in range(3):
         force[r] = R[3 * r] * fx + R[3 * r + 1] * fy + R[3 * r + 2] * fz - m * comp[G_AT + r]
+    if comp[INERTIAL_AT] != 0.0:
+        vx, vy, vz = com_velocity(chain, comp[PNC_AT:PNC_AT + 3], q, v)
+        h = t - comp[TVC_AT]
+        if 0.0 < h <= MAX_DIFFERENCE_S:
+            force[0] += m * (vx - comp[VC_AT]) / h
+            force[1] += m * (vy - comp[VC_AT + 1]) / h
+            force[2] += m * (vz - comp[VC_AT + 2]) / h
+        comp[VC_AT], comp[VC_AT + 1], comp[VC_AT + 2], comp[TVC_AT] = vx, vy, vz, t
 
 
-def sensor_placement(chain_model, sensor_frame: str) -> np.ndarray:
-    """R_nS (3 x 3): the rotation of ``sensor_frame`` in the chain's last joint frame;
+def sensor_placement(chain_model, sensor_frame: str) -> pin.SE3:
+    """The placement (R_nS, p_nS) of ``sensor_frame`` in the chain's last joint frame;
     ParameterError (one line) if the URDF has no such frame or it does not ride on the tip's
     body (the last joint of the chain moves it, and nothing else)."""
     model = chain_model.model
@@ -171,7 +279,7 @@ def sensor_placement(chain_model, sensor_frame: str) -> np.ndarray:
         raise ParameterError(f"sensor_frame {sensor_frame!r} does not ride on tip_link "
                              f"{tip.name!r}'s body (the wrist sensor sits between the last "
                              "joint and the tool)")
-    return np.array(frame.placement.rotation)
+    return pin.SE3(frame.placement)
 
 
 def weight_wrench(R: np.ndarray, mass: float, com: np.ndarray, gravity: np.ndarray) -> np.ndarray:
@@ -191,13 +299,19 @@ class WristSensor:
         self.chain = model.chain
         frame = values["sensor_frame"]
         self.sensor_frame = frame
-        R_nS = sensor_placement(model.chain_model, frame) if frame else None
+        placement = sensor_placement(model.chain_model, frame) if frame else None
         # no sensor frame: the base frame (R_S = I): R_nS = R_n(q)^T is not constant, so the
         # kernel is given the identity through a chain of no joints
         self._ideal_chain = np.array([0.0, *values["gravity"]])
         self._rotation_chain = self.chain if frame else self._ideal_chain
         self.comp = np.zeros(COMP_SIZE)
-        self.comp[RNS_AT:RNS_AT + 9] = (np.eye(3) if R_nS is None else R_nS).reshape(9)
+        self.comp[RNS_AT:RNS_AT + 9] = (np.eye(3) if placement is None
+                                        else placement.rotation).reshape(9)
+        if placement is not None:
+            self.comp[PNC_AT:PNC_AT + 3] = placement.act(np.array(values["tool_com"], float))
+            self.comp[INERTIAL_AT] = float(values["tool_mass"] > 0.0
+                                           and values["tool_acceleration_compensation"])
+        self.comp[TVC_AT] = -math.inf
         self.comp[G_AT:G_AT + 3] = values["gravity"]
         self.comp[B0_AT:B0_AT + 6] = self.comp[B1_AT:B1_AT + 6] = values["ft_bias"]
         self.gravity = np.array(values["gravity"], dtype=float)
@@ -211,6 +325,8 @@ class WristSensor:
         self._wrench = np.zeros(6)
         self._zero: dict | None = None      # the zeroing under way: window end, sums
         self._started = False
+        #: The law's clock starts here (s, controller time): the end of the start-up zeroing.
+        self.law_start = 0.0
         self.last_t = math.nan
         self.last_speed = math.inf
         self.zero_count = 0
@@ -231,11 +347,12 @@ class WristSensor:
         w = self._wrench
         k = min(wrench.shape[0], 6)
         w[:k] = wrench[:k]
-        compensate_into(self._rotation_chain, self.comp, t, q, w, self.R, self.bias, self.force)
+        compensate_into(self._rotation_chain, self.comp, t, q, v, w, self.R, self.bias,
+                        self.force)
         self.last_t = t
         self.last_speed = float(np.sqrt(v @ v))
         if self.at_start and not self._started:
-            # the first reading is taken before any command held the arm: not averaged
+            # the first reading may be taken before any command held the arm: not averaged
             self._started = True
             self._begin_zero(t + 1e-9, ZERO_START_WINDOW_S, check=False)
             self.force[:] = 0.0
@@ -246,11 +363,18 @@ class WristSensor:
             if start:
                 if self._zero is None:      # the start-up bias: in use from now on
                     self._set_bias_now(self.comp[B1_AT:B1_AT + 6].copy())
-                    compensate_into(self._rotation_chain, self.comp, t, q, w, self.R,
+                    self.law_start = t
+                    compensate_into(self._rotation_chain, self.comp, t, q, v, w, self.R,
                                     self.bias, self.force)
                 else:
-                    self.force[:] = 0.0     # touching at zero force: the premise
+                    self.force[:] = 0.0     # held still, touching at zero force
         return self.force
+
+    @property
+    def holding(self) -> bool:
+        """True during the start-up zeroing: the arm is to be held still, the law waits."""
+        return self.at_start and (not self._started or (self._zero is not None
+                                                         and not self._zero["check"]))
 
     def _weight(self) -> np.ndarray:
         return weight_wrench(self.R.reshape(3, 3), self.mass, self.com, self.gravity)

@@ -33,6 +33,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError, resolve
@@ -204,6 +205,7 @@ class TaskSpaceController(Controller):
         self.targets[TARGETS.offset("quaternion")] = 1.0
         self._output = KernelOutput(self)
         self._kernel = type(self).kernel
+        self._hold_data = None
         self._new_wrist_sensor()
 
     def _new_wrist_sensor(self) -> None:
@@ -295,6 +297,42 @@ class TaskSpaceController(Controller):
         out = self._output.new()
         if self.wrist.active:
             force = self.wrist.compensate(t, q, v, force)
+            if self.wrist.holding:
+                return self._hold(q, v, force, out)
+            t -= self.wrist.law_start
+        views = self.cycle(t, dt, q, v, force, out)
+        if self.wrist.at_start and t < wrist_sensor.HOLD_BLEND_S:
+            # from the hold's G(q) to the law's command without a jump (smoothstep)
+            G = self._gravity(q)
+            views.command[:] = G + wrist_sensor.blend(t / wrist_sensor.HOLD_BLEND_S) * (
+                views.command - G)
+            if len(self._command_slots) == self.n_joints:
+                views.status[self._command_slots] = views.command
+        return views
+
+    def cycle(self, t, dt, q, v, force, out: np.ndarray) -> ControlOutput:
+        """The law's cycle into the output vector ``out`` (the contact force ``force`` in
+        the base frame): the scheme's kernel; a scheme with more to do overrides this."""
         self._kernel(self.model.chain, self.gains, self.internal, self.targets, t, dt, q, v,
                      force, out)
         return self._output.views(out)
+
+    def _gravity(self, q: np.ndarray) -> np.ndarray:
+        """G(q) of the URDF model with the tool, in command order (the start-up hold)."""
+        chain = self.model.chain_model
+        if self._hold_data is None:
+            self._hold_data = chain.model.createData()
+        G = pin.computeGeneralizedGravity(chain.model, self._hold_data, chain.configuration(q))
+        return np.asarray(G)[self.command_order.astype(int)]
+
+    def _hold(self, q: np.ndarray, v: np.ndarray, force: np.ndarray,
+              out: np.ndarray) -> ControlOutput:
+        """The start-up zeroing's cycle (:mod:`cr_control.schemes.blocks.wrist_sensor`): the
+        arm held still by gravity compensation G(q) of the URDF model with the tool; the
+        law's cycle at its time zero (dt = 0: nothing integrates) fills reference and status.
+        Once the law runs, its command is blended in from G(q) over HOLD_BLEND_S."""
+        views = self.cycle(0.0, 0.0, q, v, force, out)
+        views.command[:] = self._gravity(q)
+        if len(self._command_slots) == self.n_joints:
+            views.status[self._command_slots] = views.command
+        return views
