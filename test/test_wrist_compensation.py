@@ -104,11 +104,11 @@ def test_compensation_cost_is_printed():
     assertions on the shared machine)."""
     c = panda_controller(ft_bias=BIAS, zero_ft_at_start=False)
     q, v, w = np.array(PANDA.home), np.zeros(7), np.array([1.0, 2.0, 9.0, 0.1, 0.2, 0.0])
-    out = np.empty(3), np.empty(9), np.empty(6)
+    out = np.empty(3), np.empty(9), np.empty(6), np.empty(6)
     comp = c.wrist.comp
-    ws.compensate_into(c.model.chain, comp, 0.0, q, v, w, out[1], out[2], out[0])
+    ws.compensate_into(c.model.chain, comp, 0.0, q, v, w, out[3], out[1], out[2], out[0])
     for name, call in (("compensate_into (compiled)", lambda: ws.compensate_into(
-            c.model.chain, comp, 0.0, q, v, w, out[1], out[2], out[0])),
+            c.model.chain, comp, 0.0, q, v, w, out[3], out[1], out[2], out[0])),
             ("WristSensor.compensate (the cycle's call)", lambda: c.wrist.compensate(
                 0.0, q, v, w))):
         k = 20000

@@ -242,11 +242,19 @@ def blend(x):
 
 
 @njit(cache=True, error_model="numpy")
-def compensate_into(chain, comp, t, q, v, wrench, R, bias, force):
-    """(1) with the bias of (2) at t: ``force`` (3, base frame) from ``wrench`` (force and
-    torque, S); also writes R_S (9) into ``R`` and the bias in use (6) into ``bias``. With
-    ``comp``'s inertial flag, plus m a_c (3), a_c the backward difference of the tool's
-    centre-of-mass velocity (:func:`com_velocity`) since the last call."""
+def compensate_into(chain, comp, t, q, v, wrench, w, R, bias, force):
+    """(1) with the bias of (2) at t: ``force`` (3, base frame) from ``wrench`` (force, or
+    force and torque, S; copied into ``w`` (6), the torque 0 if not given); also writes R_S
+    (9) into ``R`` and the bias in use (6) into ``bias``; returns |q'|. With ``comp``'s
+    inertial flag, plus m a_c (3), a_c the backward difference of the tool's centre-of-mass
+    velocity (:func:`com_velocity`) since the last call."""
+    k = min(wrench.shape[0], 6)
+    for i in range(6):
+        w[i] = wrench[i] if i < k else 0.0
+    speed = 0.0
+    for i in range(v.shape[0]):
+        speed += v[i] * v[i]
+    wrench = w
     sensor_rotation_into(chain, comp[RNS_AT:RNS_AT + 9], q, R)
     T = comp[TBLEND_AT]
     s = blend((t - comp[TB_AT]) / T) if T > 0.0 else 1.0
@@ -264,6 +272,7 @@ def compensate_into(chain, comp, t, q, v, wrench, R, bias, force):
             force[1] += m * (vy - comp[VC_AT + 1]) / h
             force[2] += m * (vz - comp[VC_AT + 2]) / h
         comp[VC_AT], comp[VC_AT + 1], comp[VC_AT + 2], comp[TVC_AT] = vx, vy, vz, t
+    return math.sqrt(speed)
 
 
 def sensor_placement(chain_model, sensor_frame: str) -> pin.SE3:
@@ -345,12 +354,9 @@ class WristSensor:
         """(1)-(2) at t: the contact force (3, base frame) for the law; ``wrench`` the
         sensor's force (3) or force and torque (6). Runs the zeroing when one is under way."""
         w = self._wrench
-        k = min(wrench.shape[0], 6)
-        w[:k] = wrench[:k]
-        compensate_into(self._rotation_chain, self.comp, t, q, v, w, self.R, self.bias,
-                        self.force)
+        self.last_speed = compensate_into(self._rotation_chain, self.comp, t, q, v, wrench, w,
+                                          self.R, self.bias, self.force)
         self.last_t = t
-        self.last_speed = float(np.sqrt(v @ v))
         if self.at_start and not self._started:
             # the first reading may be taken before any command held the arm: not averaged
             self._started = True
@@ -364,7 +370,7 @@ class WristSensor:
                 if self._zero is None:      # the start-up bias: in use from now on
                     self._set_bias_now(self.comp[B1_AT:B1_AT + 6].copy())
                     self.law_start = t
-                    compensate_into(self._rotation_chain, self.comp, t, q, v, w, self.R,
+                    compensate_into(self._rotation_chain, self.comp, t, q, v, w, w, self.R,
                                     self.bias, self.force)
                 else:
                     self.force[:] = 0.0     # held still, touching at zero force
