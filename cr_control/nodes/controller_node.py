@@ -411,8 +411,10 @@ class ControllerNode(Node):
             response.success, response.message = False, f"no wrench on {topics.WRENCH} yet"
         else:
             response.success, response.message = self.controller.zero_ft()
-        log = self.get_logger().info if response.success else self.get_logger().warn
-        log(f"~/zero_ft: {response.message}")
+        if response.success:     # one severity per call site (rclpy's logger insists)
+            self.get_logger().info(f"~/zero_ft: {response.message}")
+        else:
+            self.get_logger().warn(f"~/zero_ft: {response.message}")
         return response
 
     def _joint_order(self, names: tuple[str, ...]) -> list[int] | None:
