@@ -6,14 +6,17 @@ task judged by the plant's TRUE contact force (never by the sensor).
 Measured (offline, the Panda's wiping task with the robot profile's sensor: 0.7 kg tool,
 bias [2, -1.5, 3] N, 0.2 N noise; adaptive_impedance; true normal force, mean over the last
 half):
-- compensation on (the profile): 6 s: 10.026 N (law's reading 9.948 N);
+- compensation on (the profile): 6 s: 9.935 N (std 0.036 N; the law's reading 9.945 N);
 - sensor frame only (rotation, no tool weight, no bias): 19.92 N (+9.9 N: weight 6.87 N and
   bias 3 N pressed on top); tool weight but no zeroing: 12.96 N (+3 N: the bias);
 - compensation off (the sensor's reading taken as the base-frame force): unstable (the S
   frame's z points down: a pressing force reads as pulling): true mean 6.5 N with a standard
   deviation of 35 N, peaks of 293 N, commands stopped at the joint 6 limit.
 - cr_identify_tool on the noisy sensor (6 poses, 3 s settle, 1 s average): mass 0.6995 kg
-  (-0.07 %), centre of mass 0.05 mm off, bias within 0.008 N and 0.0002 N m.
+  (-0.07 %), centre of mass 0.05 mm off, bias within 0.008 N and 0.0002 N m; with this
+  test's shorter poses (2 s, 0.5 s): 0.089 % and 0.16 mm.
+- the compensation's cost: ~3 us per cycle (micro-timing, printed; load average 7 on the
+  2-core machine); the Panda's compute p50 33 us without, 38 us with it (offline loop).
 """
 
 from __future__ import annotations
@@ -195,7 +198,7 @@ def wiping():
 
 
 def test_compensated_wiping_holds_the_true_force(wiping):
-    """Measured 10.026 N over the last half (the requirement: 10 N +- 1 N)."""
+    """Measured 9.935 N over the last half (the requirement: 10 N +- 1 N)."""
     run = wiping["on"]
     late = run.time >= 3.0
     f = run.contact_force[late, 2]

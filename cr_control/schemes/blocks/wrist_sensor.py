@@ -53,8 +53,9 @@ of a zero torque in it). Zeroing while the law already runs instead carries its 
 transient: measured on the Panda's wiping task, whose path starts at 5 cm/s, 0.65 N of the
 normal force ended up in the bias.
 
-Cost: one compiled call per cycle, the rotation pass over n joints and (1), (2): measured
-in test/test_wrist_compensation.py's micro-timing (printed).
+Cost: one compiled call per cycle (the wrench copied, |q'|, the rotation pass over n joints,
+(1), (2)): ~3 us on the Panda (test/test_wrist_compensation.py's micro-timing, printed, on
+the loaded 2-core machine); its compute p50 in the offline loop 33 us without, 38 us with.
 """
 
 from __future__ import annotations
