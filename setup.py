@@ -55,6 +55,7 @@ setup(
             "cr_param = cr_control.tools.param_tool:main",
             "cr_lifecycle = cr_control.tools.lifecycle_tool:main",
             "cr_fuzz = cr_control.tools.fuzz:main",
+            "cr_identify_tool = cr_control.tools.identify_tool:main",
         ]
         + [f"{name} = cr_control.nodes.controller_node:main_{name}" for name in SCHEMES],
     },

@@ -14,7 +14,9 @@
   reader of its topics (a recorder too) has acknowledged them, and the whole loop waits
   with it (:mod:`cr_control.nodes.lockstep`).
 
-Publishes /joint_states, the force/torque sensor wrench (same stamp), per-second loop
+Publishes /joint_states, the force/torque sensor wrench (same stamp; force and torque, in
+the plant's ``wrench_frame``), for plants that have one the true contact wrench on
+/plant/contact_wrench (base frame, same stamp; analysis and tests only), per-second loop
 statistics on /plant/timing, and stops by itself after ``duration`` seconds of
 simulated time (0 = run until stopped). Its command interface ("effort" or "position",
 :attr:`~cr_sim.plants.base.Plant.command_interface`) is advertised once, latched, on
@@ -225,7 +227,11 @@ def initial_command(plant: Plant) -> np.ndarray:
         return np.array(held, dtype=float)
     if plant.command_interface == "position":
         return np.array(plant.measurement().position, dtype=float)
-    gravity = plant.gravity_torque(plant.measurement().position)
+    # a plant's noise-free position where it has one: no noise drawn (the offline loop draws
+    # none here, so lockstep stays bit for bit with a noisy sensor)
+    true_position = getattr(plant, "true_position", None)
+    position = true_position() if callable(true_position) else plant.measurement().position
+    gravity = plant.gravity_torque(np.asarray(position, dtype=float))
     if gravity is not None and gravity.shape == (n,) and np.all(np.isfinite(gravity)):
         return gravity
     return np.zeros(n)
@@ -308,6 +314,11 @@ class PlantNode(Node):
 
         self.state_pub = self.create_publisher(JointState, topics.JOINT_STATES, PUBLISH_QOS)
         self.wrench_pub = self.create_publisher(WrenchStamped, topics.WRENCH, PUBLISH_QOS)
+        # The true contact wrench (base frame), for analysis and tests (topics.CONTACT_WRENCH).
+        truth = getattr(self.plant, "contact_wrench", None)
+        self._truth = truth if callable(truth) else None
+        self.contact_pub = (self.create_publisher(WrenchStamped, topics.CONTACT_WRENCH,
+                                                  PUBLISH_QOS) if self._truth else None)
         sensor_fields = ["stamp", *self.plant.sensor_fields]
         self.sensors_pub = (self.create_publisher(Float64MultiArray, topics.PLANT_SENSORS,
                                                   PUBLISH_QOS) if len(sensor_fields) > 1 else None)
@@ -320,7 +331,7 @@ class PlantNode(Node):
                                             not self.lockstep, SAFE_STOP_REASONS)
         self.markers = PlantMarkers(self, self.plant)    # /plant/markers, ~30 Hz (issue 22)
         self._pacer = ReaderPacer(self, [self.state_pub, self.wrench_pub, self.sensors_pub,
-                                         self.clock_pub])   # used in lockstep
+                                         self.clock_pub, self.contact_pub])   # used in lockstep
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,
                                                  topics.PLANT_TIMING_FIELDS)
         # Outgoing messages, built once as CDR bytes and refilled in place every tick.
@@ -331,7 +342,10 @@ class PlantNode(Node):
         # frame_id: the frame the plant measures its wrench in (a URDF sensor link, its base).
         self._wrench = cdr.Writer(cdr.wrench_stamped,
                                   frame_id=self.plant.wrench_frame)
-        self._force_out = self._wrench.array("wrench")[:3]
+        self._wrench_out = self._wrench.array("wrench")       # force, torque
+        self._contact = cdr.Writer(cdr.wrench_stamped,
+                                   frame_id=getattr(self.plant, "base_frame", "world"))
+        self._contact_out = self._contact.array("wrench")
         self._clock_out = cdr.Writer(cdr.clock)
         self._read_command = JointStateReader()
 
@@ -443,11 +457,18 @@ class PlantNode(Node):
         self._e_out[:] = m.effort
         state.set_stamp(sec, nanosec)
         wrench.set_stamp(sec, nanosec)
-        self._force_out[:] = m.force
+        self._wrench_out[:3] = m.force
+        self._wrench_out[3:] = m.torque
         if self.clock_pub is not None:
             self._clock_out.set_stamp(sec, nanosec)
             self.clock_pub.publish(self._clock_out.message())
         self.wrench_pub.publish(wrench.message())
+        if self._truth is not None:
+            truth = self._truth()
+            self._contact.set_stamp(sec, nanosec)
+            self._contact_out[:3] = truth.force
+            self._contact_out[3:] = truth.torque
+            self.contact_pub.publish(self._contact.message())
         if self.sensors_pub is not None:
             self._sensors_out[0] = sec + nanosec * 1e-9
             self._sensors_out[1:] = self.plant.sensors()

@@ -25,6 +25,33 @@ NN leaves the table while it learns the arm's weight (0.08-0.88 s on the Panda, 
 on the UR5), as its thesis run starts with a torque peak: contact is checked from 1 s on
 for it, from 0.05 s on (the desired force is ramped in from 0 N over 1 s) for the others.
 No run comes within 0.66 rad of a joint limit.
+
+Issue 24: the robots' sensor is a realistic wrist sensor (0.7 kg tool, a bias of a few
+newtons, 0.2 N of noise; cr_control.tools.robots.SENSOR), compensated and zeroed at start
+(a 30 ms hold while the bias is averaged: the law's clock starts after it). The force is
+judged by the plant's TRUE contact force (never by the sensor's reading). Measured then
+(offline, 20 s, last half):
+
+| robot / scheme | path RMS | true force mean | true force err RMS | orientation max |
+|---|---|---|---|---|
+| panda adaptive_impedance | 6.30 mm | 9.968 N | 0.044 N | 0.69 deg |
+| panda robust_adaptive_impedance | 5.91 mm | 9.966 N | 0.048 N | 2.69 deg |
+| panda nn_adaptive_impedance | 0.092 mm | 9.991 N | 0.065 N | 1.33 deg |
+| panda impedance | 0.255 mm | 9.881 N | 0.126 N | 0.42 deg |
+| panda fuzzy_unidirectional | 0.204 mm | 9.852 N | 0.153 N | 0.44 deg |
+| ur5 adaptive_impedance | 6.04 mm | 9.969 N | 0.043 N | 0.24 deg |
+| ur5 robust_adaptive_impedance | 5.88 mm | 9.967 N | 0.047 N | 0.97 deg |
+| ur5 nn_adaptive_impedance | 0.668 mm | 9.991 N | 0.050 N | 0.86 deg |
+| ur5 impedance | 0.882 mm | 9.876 N | 0.130 N | 0.15 deg |
+| ur5 fuzzy_unidirectional | 0.704 mm | 9.847 N | 0.158 N | 0.15 deg |
+
+Two bounds moved, for a reason found, not to make room: the sensor's 0.2 N of noise on
+every axis reaches the chapter 5 laws' in-plane axes (their path error 0.02 -> 0.2-0.9 mm:
+PATH_RMS_M 0.1 -> 1.5 mm) and the NN law's force (its error RMS 0.0016 -> 0.05-0.065 N: the
+noise it follows and the bias averaged over 30 noisy readings, 0.04 N per axis; 0.01 ->
+0.08 N). The lockstep comparison runs the sensor without noise: the laws turn 0.2 N of noise
+into torque steps of up to 2.3 N m per ms, beyond the plant node's torque-rate limit (1 N m
+per ms) that the offline loop does not have.
 """
 
 import numpy as np
@@ -32,6 +59,7 @@ import pytest
 from ros_probe import next_domain
 
 from cr_control.models.urdf import load_chain
+from cr_control.schemes.blocks.wrist_sensor import ZERO_START_WINDOW_S
 from cr_control.tools import robots
 from cr_control.tools.offline import run_scheme
 
@@ -41,13 +69,20 @@ CH5 = ("impedance", "fuzzy_unidirectional")
 
 #: Bounds with margin over the measured values of the module docstring.
 PATH_RMS_M = {**dict.fromkeys(CH3, 8e-3), "nn_adaptive_impedance": 1.5e-3,
-              **dict.fromkeys(CH5, 1e-4)}
-FORCE_ERR_RMS_N = {**dict.fromkeys(CH3, 0.05), "nn_adaptive_impedance": 0.01,
+              **dict.fromkeys(CH5, 1.5e-3)}
+FORCE_ERR_RMS_N = {**dict.fromkeys(CH3, 0.05), "nn_adaptive_impedance": 0.08,
                    **dict.fromkeys(CH5, 0.2)}
 ORIENTATION_MAX_DEG = {"robust_adaptive_impedance": 4.0,      # its model is 10 % light
                        "nn_adaptive_impedance": 3.0}           # its learning transient
 POSTURE_MAX_RAD = 0.02
-CONTACT_FROM_S = {"nn_adaptive_impedance": 1.0}
+#: Contact is judged from this long after the law starts (s): after the start-up hold.
+LAW_START_S = ZERO_START_WINDOW_S + 1e-3
+#: The chapter 5 laws: from 0.1 s (f_d 0.28 N): before, their desired force is below the
+#: sensor's 0.2 N noise and the tool just touches (f = 0, "lost", until 62 ms after the law
+#: starts on the Panda); the ideal sensor's start transient pressed 1 N by accident.
+CONTACT_FROM_S = {"nn_adaptive_impedance": 1.0, **dict.fromkeys(CH5, 0.1)}
+#: The lockstep comparison's sensor: without noise (module docstring).
+NOISE_FREE = {"ft_noise_std": [0.0, 0.0]}
 
 
 def metrics(run, robot: str) -> dict[str, float]:
@@ -55,7 +90,7 @@ def metrics(run, robot: str) -> dict[str, float]:
     t = run.time
     late = t >= t[-1] / 2
     path = np.hypot(run.column("e_x"), run.column("e_y"))
-    f_z = run.column("f_z")
+    f_z = run.contact_force[:, 2]              # the true contact force
     rot = np.linalg.norm(np.column_stack([run.column(f"e_rot_{a}") for a in "xyz"]), axis=1)
     r = robots.robot(robot)
     limits = load_chain("", r.urdf_file, r.base_link, r.tip_link).limits
@@ -72,8 +107,9 @@ def metrics(run, robot: str) -> dict[str, float]:
 
 
 def contact_from(run, scheme: str) -> float:
-    """The smallest normal force once contact must hold (see the module docstring)."""
-    return float(run.column("f_z")[run.time >= CONTACT_FROM_S.get(scheme, 0.05)].min())
+    """The smallest true normal force once contact must hold (see the module docstring)."""
+    since = LAW_START_S + CONTACT_FROM_S.get(scheme, 0.05)
+    return float(run.contact_force[run.time >= since, 2].min())
 
 
 @pytest.fixture(scope="module", params=CASES, ids=[f"{r}-{s}" for r, s in CASES])
@@ -125,16 +161,18 @@ def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
     from cr_control.tools.session import Session, SessionConfig
 
     cfg = SessionConfig(scheme=scheme, duration=LOCKSTEP_S, mode="lockstep", out=tmp_path,
-                        domain_id=next_domain(), name="run", robot=robot)
+                        domain_id=next_domain(), name="run", robot=robot,
+                        overrides=["plant.ft_noise_std=[0.0, 0.0]"])
     s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
-    offline = run_scheme(scheme, LOCKSTEP_S, robot=robot)
+    offline = run_scheme(scheme, LOCKSTEP_S, robot=robot, plant_overrides=NOISE_FREE)
     rows = np.rint(s.status["stamp"] * 1e3).astype(int)
     assert len(rows) > 0.9 * LOCKSTEP_S * 1000
     fingers = ["panda_finger_joint1", "panda_finger_joint2"] if robot == "panda" else []
     assert len(s.joint_states.names) == offline.command.shape[1] + len(fingers)
     assert s.joint_states.names[len(s.joint_states.names) - len(fingers):] == fingers
-    f_z = s.status["f_z"]
-    assert f_z[s.status["stamp"] >= CONTACT_FROM_S.get(scheme, 0.05)].min() > 0.0
+    f_z = s.contact_wrench.force[:, 2]          # the true contact force
+    since = LAW_START_S + CONTACT_FROM_S.get(scheme, 0.05)
+    assert f_z[s.contact_wrench.time >= since].min() > 0.0
     assert np.all(s.status["held"] == 0.0)
     if scheme == "nn_adaptive_impedance":
         assert abs(f_z[-1] - robots.WIPE_FORCE) < 1.0

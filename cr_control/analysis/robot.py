@@ -10,8 +10,12 @@ time span; time zero = the first status stamp):
 
 - ``normal_force_mean_last_half_N``: mean of the normal force f_n = n . f (N) over the
   last half, n the table's unit normal (the status ``n_x/y/z`` of the chapter 5 schemes,
-  else +z: then f_n is f_z) and f the measured force of the wrench topic, at its full
-  rate (the status may be decimated, to 100 Hz in real time), else of the status;
+  else +z: then f_n is f_z) and f the plant's true contact force
+  (``/plant/contact_wrench``) where it was recorded: force control is judged by the true
+  force, never by the sensor alone (a wrist sensor reads in its own frame, with the tool's
+  weight and a bias). Else the measured force of the wrench topic, at its full rate (the
+  status may be decimated, to 100 Hz in real time), else of the status;
+  ``force_source`` says which (``contact_wrench``, ``wrench``, ``status``);
 - ``normal_force_err_rms_last_half_N``: RMS of f_n - f_d,n (N) over the last half, f_d,n
   = n . f_d from the reference topic (f_d_z for the table) at the force's stamps;
 - ``path_err_rms_last_half_m`` / ``path_err_max_last_half_m``: RMS / max of the in-plane
@@ -101,23 +105,36 @@ def normals(status: dict[str, np.ndarray], t: np.ndarray | None = None) -> np.nd
 
 
 def normal_force(session: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(stamps, f_n, f_d,n): measured and desired force along the table normal (N).
+    """(stamps, f_n, f_d,n): the contact force and the desired one along the table normal (N).
 
-    The measured force is the wrench topic's (the sensor's full rate: the status may be
-    decimated, e.g. to 100 Hz in real time), else the status's; f_d,n = n . f_d from the
+    The contact force is the plant's true one (``/plant/contact_wrench``) if recorded, else
+    the wrench topic's (the sensor's full rate: the status may be decimated, e.g. to 100 Hz
+    in real time), else the status's (:func:`force_source`); f_d,n = n . f_d from the
     reference at those stamps, None without a desired force.
     """
-    status, ref, wrench = session.status, session.reference, session.wrench
-    if wrench is not None and len(wrench.time):
-        t, f = wrench.time, wrench.force
-    else:
+    status, ref = session.status, session.reference
+    source = force_source(session)
+    if source == "status":
         t, f = status["stamp"], _stack(status, "f_")
+    else:
+        series = getattr(session, source)
+        t, f = series.time, series.force
     n = normals(status, t)
     f_n = np.sum(f * n, axis=1)
     if not (len(ref.get("stamp", ())) and all(f"f_d_{a}" in ref for a in AXES)):
         return t, f_n, None
     f_d = np.column_stack([_at(ref, f"f_d_{a}", t) for a in AXES])
     return t, f_n, np.sum(f_d * n, axis=1)
+
+
+def force_source(session: Any) -> str:
+    """Where the contact force is judged from: ``contact_wrench`` (the plant's true one),
+    else ``wrench`` (the sensor topic), else ``status`` (what the law was given)."""
+    for name in ("contact_wrench", "wrench"):
+        series = getattr(session, name, None)
+        if series is not None and len(series.time):
+            return name
+    return "status"
 
 
 def in_plane_error(status: dict[str, np.ndarray]) -> np.ndarray:
@@ -162,7 +179,8 @@ def robot_metrics(session: Any) -> dict[str, float]:
     middle = t[0] + 0.5 * (t[-1] - t[0])
     t_f, f_n, f_d = normal_force(session)
     late = t_f >= middle
-    out = {"normal_force_mean_last_half_N": float(np.mean(f_n[late]))}
+    out: dict[str, Any] = {"normal_force_mean_last_half_N": float(np.mean(f_n[late])),
+                           "force_source": force_source(session)}
     if f_d is not None:
         out["normal_force_err_rms_last_half_N"] = _rms(f_n[late] - f_d[late])
     path = in_plane_error(status)[t >= middle]
@@ -266,7 +284,9 @@ def _figure_force(session: Any, out: Path, written: list[Path]) -> None:
                  for a, b in contact_lost_intervals(t_abs, f_n, since=t0 + CONTACT_GRACE_S)]
     lost = sum(b - a for a, b in intervals)
     fig, axes = column_figure(2 if f_d is not None else 1, 2.6)
-    axes[0].plot(t, f_n, label="f_n (measured)")
+    source = force_source(session)
+    axes[0].plot(t, f_n, label="f_n (true contact)" if source == "contact_wrench"
+                 else "f_n (measured)")
     if f_d is not None:
         axes[0].plot(t, f_d, "k--", lw=0.9, label="f_d,n (desired)")
         axes[1].plot(t, f_n - f_d, label="f_n − f_d,n")

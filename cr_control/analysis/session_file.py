@@ -85,6 +85,8 @@ class Session:
     joint_states: JointSeries | None = None
     joint_commands: JointSeries | None = None
     wrench: WrenchSeries | None = None
+    #: The plant's true contact wrench (topics.CONTACT_WRENCH, base frame), if recorded.
+    contact_wrench: WrenchSeries | None = None
     #: node -> parameter -> value (from the ``parameters/<node>`` metadata records).
     parameters: dict[str, dict[str, Any]] = field(default_factory=dict)
     message_counts: dict[str, int] = field(default_factory=dict)
@@ -350,7 +352,9 @@ def load_session(path: str | Path) -> Session:
         if isinstance(acc, _LabelledTopic):
             session.labelled[topic] = acc.columns()
         elif isinstance(acc, _WrenchTopic):
-            if session.wrench is None or topic == topics.WRENCH:
+            if topic == topics.CONTACT_WRENCH:
+                session.contact_wrench = acc.series()
+            elif session.wrench is None or topic == topics.WRENCH:
                 session.wrench = acc.series()
                 _note_publishers(session, "wrench", publishers.get(topic))
         elif isinstance(acc, _JointTopic):

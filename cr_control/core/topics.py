@@ -172,3 +172,9 @@ PLANT_COMMAND_INTERFACE = "/plant/command_interface"
 #: a labelled Float64MultiArray with the joint state's stamp first, published with every
 #: state by plants that have any.
 PLANT_SENSORS = "/plant/sensors"
+
+#: The plant's true contact wrench (geometry_msgs/WrenchStamped, base frame, the joint state's
+#: stamp; issue 24), published by plants that have one (``urdf_surface``): for analysis and
+#: tests only, no controller reads it (a real robot has no such topic). Judge force control
+#: by it, never by the sensor's wrench alone.
+CONTACT_WRENCH = "/plant/contact_wrench"

@@ -43,7 +43,13 @@ Guards (issue 25; counted in the status, :data:`cr_control.core.topics.NODE_STAT
   or of another length than the last state and saying it has more than 64 names, and a
   wrench or plant sensor message beyond its bound, is dropped unread (``inputs_oversized``).
 - Sensor sanity: a wrench whose force is above ``max_sensor_force`` or not finite is a
-  sensor fault: the last sane force stays in use (``sensor_faults``, one warning).
+  sensor fault: the last sane force stays in use (``sensor_faults``, one warning); so is a
+  wrench whose frame_id is not the controller's ``sensor_frame`` (when set).
+
+Wrist sensor (issue 24, task-space schemes): the wrench's force and torque (sensor frame)
+go to the law, which compensates them (:mod:`cr_control.schemes.blocks.wrist_sensor`);
+``~/zero_ft`` (std_srvs/Trigger) starts zeroing the sensor's bias, or refuses with the
+reason (no wrench yet, moving, in contact, a zeroing under way).
 - A failing law: while :attr:`Controller.commanding` is False (its output failed for more
   than ``max_bad_cycles`` cycles in a row) no command is published, so the plant's
   watchdog brakes; ``commands_stopped`` is 1.
@@ -65,6 +71,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import Trigger
 
 from cr_control.core import cdr, topics
 from cr_control.nodes import sender_aware
@@ -146,7 +153,10 @@ class ControllerNode(LifecycleNode):
         self._cycle = 0
         self._out_time_us = 0.0
         self._index_cache: tuple[tuple[str, ...], list[int] | None] = ((), None)
-        self.force = np.zeros(3)
+        self.wrench = np.zeros(6)             # the last sane wrench: force, torque
+        self.force = self.wrench[:3]
+        self._wrench_seen = False
+        self._sensor_frame = self.controller.values.get("sensor_frame", "")
         self._last_stamp: tuple[int, int] | None = None
         self._answered = False
         self.active = False                   # lifecycle state "active": states are answered
@@ -221,6 +231,8 @@ class ControllerNode(LifecycleNode):
                                      quiet_on_shutdown(self, self._on_target_pose), TARGET_QOS)
             self.create_subscription(WrenchStamped, f"~/{topics.TARGET_WRENCH_SUFFIX}",
                                      quiet_on_shutdown(self, self._on_target_wrench), TARGET_QOS)
+        if hasattr(self.controller, "zero_ft"):            # task-space schemes: a wrist sensor
+            self.create_service(Trigger, "~/zero_ft", quiet_on_shutdown(self, self._on_zero_ft))
         self.get_logger().info(
             f"{scheme}: {len(specs)} parameters, commanding {self.joint_names} "
             f"({self.controller.command_interface})"
@@ -359,8 +371,16 @@ class ControllerNode(LifecycleNode):
             return
         fx, fy, fz = wrench.force
         limit = self.controller.values["max_sensor_force"]
+        if self._sensor_frame and wrench.frame_id != self._sensor_frame:
+            self.sensor_faults += 1
+            self._log_limited("sensor frame", "error",
+                              f"a wrench in frame {wrench.frame_id!r}, not sensor_frame "
+                              f"{self._sensor_frame!r}: ignored (counted in sensor_faults)")
+            return
         if fx * fx + fy * fy + fz * fz <= limit * limit:     # False for NaN, inf, overflow
             self.force[:] = wrench.force
+            self.wrench[3:] = wrench.torque
+            self._wrench_seen = True
             self._sensor_fault = False
             return
         self.sensor_faults += 1
@@ -370,6 +390,11 @@ class ControllerNode(LifecycleNode):
                               f"wrench force {list(wrench.force)} N: |f| above max_sensor_force "
                               f"{limit:g} N or not finite: a sensor fault; the last sane force "
                               f"{self.force.tolist()} N stays in use (counted in sensor_faults)")
+
+    @property
+    def controller_reads_wrench(self) -> bool:
+        """Whether the law takes force and torque (a wrist sensor), else the force alone."""
+        return getattr(self.controller, "reads_wrench", False)
 
     def _on_plant_sensors(self, data: bytes) -> None:
         """The plant's extra measurements the law reads (``plant_sensor_fields``), found by
@@ -427,6 +452,18 @@ class ControllerNode(LifecycleNode):
         force = [f.x, f.y, f.z]
         if self._target_usable(topics.TARGET_WRENCH_SUFFIX, msg.header.frame_id, force):
             self.controller.set_target_wrench(np.array(force))
+
+    def _on_zero_ft(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """~/zero_ft: start zeroing the wrist sensor (the controller judges whether it can)."""
+        if not self._wrench_seen:
+            response.success, response.message = False, f"no wrench on {topics.WRENCH} yet"
+        else:
+            response.success, response.message = self.controller.zero_ft()
+        if response.success:     # one severity per call site (rclpy's logger insists)
+            self.get_logger().info(f"~/zero_ft: {response.message}")
+        else:
+            self.get_logger().warn(f"~/zero_ft: {response.message}")
+        return response
 
     def _joint_order(self, names: tuple[str, ...]) -> list[int] | None:
         """Indices of our state joints in a JointState's name list (None if any is missing)."""
@@ -543,7 +580,8 @@ class ControllerNode(LifecycleNode):
                 "uses its fallback where it has one)")
         t = stamp[0] + stamp[1] * 1e-9
         compute_start = time.perf_counter()
-        out = self.controller.step(t, position, velocity, self.force)
+        out = self.controller.step(t, position, velocity,
+                                   self.wrench if self.controller_reads_wrench else self.force)
 
         # -- messages out (timed; reported in the next published status) --
         out_start = time.perf_counter()

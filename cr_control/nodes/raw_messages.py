@@ -79,6 +79,7 @@ class WrenchFields(NamedTuple):
     nanosec: int
     force: tuple[float, float, float]
     torque: tuple[float, float, float]
+    frame_id: str = ""
 
 
 class ArrayFields(NamedTuple):
@@ -136,12 +137,13 @@ class WrenchReader(_RawReader):
 
     def _from_items(self, items: tuple, shape: cdr.Shape) -> WrenchFields:
         start = shape.slices["wrench"].start
-        return WrenchFields(items[0], items[1], items[start:start + 3], items[start + 3:start + 6])
+        return WrenchFields(items[0], items[1], items[start:start + 3], items[start + 3:start + 6],
+                            shape.strings["frame_id"][0])
 
     def _from_message(self, msg: WrenchStamped) -> WrenchFields:
         f, t = msg.wrench.force, msg.wrench.torque
         return WrenchFields(msg.header.stamp.sec, msg.header.stamp.nanosec, (f.x, f.y, f.z),
-                            (t.x, t.y, t.z))
+                            (t.x, t.y, t.z), msg.header.frame_id)
 
 
 class ArrayReader(_RawReader):

@@ -55,7 +55,8 @@ ROS parameters (all read-only, read at start):
   commands, ``/clock``, plant timing, ``/parameter_events``.
 - ``optional_topics`` (string array): topics recorded whenever they appear but never
   waited for. Default ``/clock`` (published only in lockstep mode), ``/plant/sensors``,
-  ``/diagnostics`` and ``/plant/markers``.
+  ``/plant/contact_wrench`` (published by the plants that have them), ``/diagnostics`` and
+  ``/plant/markers``.
 - ``parameter_nodes`` (string array): nodes whose parameters are saved. Default empty:
   every node in the graph when ready, except this one.
 - ``ready_timeout`` (double, s): how long to wait for the topics before declaring ready
@@ -121,7 +122,8 @@ DEFAULT_TOPICS = [
     topics.PLANT_TIMING,
     topics.PARAMETER_EVENTS,
 ]
-DEFAULT_OPTIONAL_TOPICS = [topics.CLOCK, topics.PLANT_SENSORS, topics.DIAGNOSTICS, topics.PLANT_MARKERS]
+DEFAULT_OPTIONAL_TOPICS = [topics.CLOCK, topics.PLANT_SENSORS, topics.CONTACT_WRENCH,
+                           topics.DIAGNOSTICS, topics.PLANT_MARKERS]
 
 #: The executor runs in slices of this length; between slices the recorder discovers
 #: topics, checks readiness and parameter requests, and notices a stop request.

@@ -2,10 +2,17 @@
 
 Bit-for-bit deterministic (same inputs, same numbers); equivalent to the plant's
 lockstep mode: the command computed from the state at t_k is held over [t_k, t_k+1).
+
+A controller that reads the whole wrench (``reads_wrench``: a wrist sensor to compensate)
+is given force and torque, as the node gives it a WrenchStamped's; the plant's true contact
+force (``/plant/contact_wrench`` over ROS) is kept in ``contact_force`` where the plant has
+one. ``hook(k, t, controller, plant)``, called before each cycle, stands in for what a ROS
+session does between cycles (a ``~/zero_ft`` call, a ``~/target_pose``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +38,8 @@ class OfflineRun:
     status: np.ndarray
     reference_fields: list[str]
     status_fields: list[str]
+    #: The true contact force (base frame, N) per cycle; None for a plant without one.
+    contact_force: np.ndarray | None = None
 
     def column(self, name: str) -> np.ndarray:
         """A named reference or status column (fields of topics.py)."""
@@ -39,8 +48,9 @@ class OfflineRun:
         return self.reference[:, self.reference_fields.index(name) - 1]
 
 
-def run(controller: Controller, plant: Plant, duration: float, period: float = 1e-3) -> OfflineRun:
-    """Step ``plant`` and ``controller`` for ``duration`` s at ``period``."""
+def run(controller: Controller, plant: Plant, duration: float, period: float = 1e-3,
+        hook: Callable[[int, float, Controller, Plant], None] | None = None) -> OfflineRun:
+    """Step ``plant`` and ``controller`` for ``duration`` s at ``period`` (module docstring)."""
     steps = int(round(duration / period))
     n = len(plant.joint_names)
     n_command = len(plant.command_joints)
@@ -71,7 +81,11 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         "reference": np.empty((steps, len(controller.reference_fields) - 1)),
         "status": np.empty((steps, len(controller.status_fields) - 1)),
     }
+    truth = getattr(plant, "contact_wrench", None)
+    contact = np.empty((steps, 3)) if truth is not None else None
     for k in range(steps):
+        if hook is not None:
+            hook(k, k * period, controller, plant)
         m = plant.measurement()
         if sensor_index is not None:
             sensors = plant.sensors()
@@ -81,7 +95,11 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         # loop amplifies round-off (fjr_robust_adaptive's boundary layer at 1 kHz)
         sec, nanosec = divmod(round(m.time * 1e9), 1_000_000_000)
         q, v = (m.position, m.velocity) if read is None else (m.position[read], m.velocity[read])
-        out = controller.step(sec + nanosec * 1e-9, q, v, m.force)
+        force = (np.concatenate([m.force, m.torque]) if getattr(controller, "reads_wrench", False)
+                 else m.force)
+        out = controller.step(sec + nanosec * 1e-9, q, v, force)
+        if contact is not None:
+            contact[k] = truth().force
         plant.step(out.command if to_plant is None else out.command[to_plant], period)
         rows["time"][k] = m.time
         rows["position"][k] = m.position
@@ -91,7 +109,7 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         rows["reference"][k] = out.reference
         rows["status"][k] = out.status
     return OfflineRun(**rows, reference_fields=list(controller.reference_fields),
-                      status_fields=list(controller.status_fields))
+                      status_fields=list(controller.status_fields), contact_force=contact)
 
 
 def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -105,7 +123,8 @@ def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None)
 
 def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
                plant_overrides: dict[str, Any] | None = None, period: float = 1e-3,
-               robot: str | None = None) -> OfflineRun:
+               robot: str | None = None,
+               hook: Callable[[int, float, Controller, Plant], None] | None = None) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
     on ``robot``'s wiping task (the parameters of config/robots/<robot>/, see
     :mod:`cr_control.tools.robots`)."""
@@ -119,4 +138,4 @@ def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any
                                                                 **(plant_overrides or {})})
         controller = make_controller(scheme, {**robots.controller_values(r, scheme),
                                               **(controller_overrides or {})})
-    return run(controller, plant, duration, period)
+    return run(controller, plant, duration, period, hook)

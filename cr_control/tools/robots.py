@@ -8,6 +8,14 @@ radius WIPE_RADIUS in it, starting where it stands. Its parameters are generated
 ``config/robots/<robot>/`` (``plant.yaml`` and one file per task-space scheme) by
 ``python -m cr_control.tools.config_files --write config``; sessions and the offline loop read
 those files, so what a test runs is what a user runs.
+
+The force sensor is a realistic wrist sensor (issue 24): at the flange (``sensor_frame``:
+``panda_link8``, ``tool0``), reading in its own frame, carrying a 0.7 kg tool whose centre of
+mass is 6 cm out along the flange axis, with a bias of a few newtons and 0.2 N of noise
+(:data:`SENSOR`). The controllers know the tool (``tool_mass``, ``tool_com``: what
+``cr_identify_tool`` estimates) and zero the bias on their first states
+(``zero_ft_at_start``: the task starts touching at zero force). The thesis scenarios keep
+their ideal sensor.
 """
 
 from __future__ import annotations
@@ -23,7 +31,8 @@ from cr_control.models.urdf import load_chain
 
 @dataclass(frozen=True)
 class Robot:
-    """A robot from its URDF: the chain base_link -> tip_link, a home pose and its source."""
+    """A robot from its URDF: the chain base_link -> tip_link, a home pose, its source and
+    the flange, where the wrist force/torque sensor sits."""
 
     name: str
     urdf_file: str
@@ -31,6 +40,7 @@ class Robot:
     tip_link: str
     home: tuple[float, ...]
     source: str
+    flange: str
 
 
 ROBOTS = {
@@ -40,12 +50,12 @@ ROBOTS = {
                                           math.pi / 2, math.pi / 4),
         "Franka Emika Panda, 7 joints (+ 2 finger joints, locked): example-robot-data 6.0.0, "
         "from franka_ros's description with its identified inertias; home = franka_ros's "
-        "ready pose"),
+        "ready pose", "panda_link8"),
     "ur5": Robot(
         "ur5", "package://example-robot-data/robots/ur_description/urdf/ur5_robot.urdf",
         "base_link", "tool0", (0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0),
         "Universal Robots UR5, 6 joints: example-robot-data 6.0.0, from ur_description (UR's "
-        "published kinematics and link masses); home: tool pointing down"),
+        "published kinematics and link masses); home: tool pointing down", "tool0"),
 }
 
 #: Wiping: circle radius (m), angular frequency (rad/s), contact force (N) and the table.
@@ -68,6 +78,14 @@ ROBUST_MODEL = {"model_mass_scale": 0.9, "model_inertia_scale": 0.9, "delta_G": 
 #: unstable (measured: the Panda pressed 1700 N within 1 s, and 1/10 of them still diverges);
 #: these keep it stable on both arms (90 and 67 commands clipped in the first second).
 NN_GAINS = {"Gamma_M": 0.01, "Gamma_C": 0.01, "Gamma_G": 1.0}
+#: The wrist sensor of the robot scenarios (plant parameters; sensor_frame: the flange): a
+#: 0.7 kg tool, its centre of mass 6 cm out along the flange axis (the inertia of a solid
+#: cylinder of 3 cm radius and 12 cm length about it), a bias of a few newtons (3.9 N) and
+#: tenths of a newton metre, and noise of 0.2 N and 0.01 N m (the class of an ATI Mini45 or
+#: a Robotiq FT 300).
+SENSOR = {"tool_mass": 0.7, "tool_com": [0.0, 0.0, 0.06],
+          "tool_inertia": [1.0e-3, 0.0, 0.0, 1.0e-3, 0.0, 3.2e-4],
+          "ft_bias": [2.0, -1.5, 3.0, 0.1, -0.05, 0.02], "ft_noise_std": [0.2, 0.01]}
 #: The task-space schemes (chapters 3 and 5) that run on a robot.
 TASK_SPACE_SCHEMES = ("adaptive_impedance", "robust_adaptive_impedance", "nn_adaptive_impedance",
                       "impedance", "fuzzy_unidirectional")
@@ -97,7 +115,7 @@ def plant_values(r: Robot) -> dict[str, Any]:
     return {**robot_parameters(r), "scenario": "urdf_surface",
             "initial_joint_positions": list(r.home), "surface": "plane",
             "surface_normal": [0.0, 0.0, 1.0], "stiffness": TABLE_STIFFNESS,
-            "damping": TABLE_DAMPING}
+            "damping": TABLE_DAMPING, "sensor_frame": r.flange, **SENSOR}
 
 
 def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
@@ -109,7 +127,9 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
               "reference_offset": [a, 0.0, 0.0], "reference_amplitude": [a, a, 0.0],
               "reference_phase": [0.0, -math.pi / 2, 0.0],
               "reference_frequency": WIPE_FREQUENCY, "posture": list(r.home),
-              "force_ramp_time": FORCE_RAMP_TIME}
+              "force_ramp_time": FORCE_RAMP_TIME, "sensor_frame": r.flange,
+              "tool_mass": SENSOR["tool_mass"], "tool_com": SENSOR["tool_com"],
+              "zero_ft_at_start": True}
     if scheme in ("impedance", "fuzzy_unidirectional"):
         values.update(f_dm=WIPE_FORCE, surface="plane", surface_normal=[0.0, 0.0, 1.0],
                       surface_centre=[float(x) for x in home_tip(r)])

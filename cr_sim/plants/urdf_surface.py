@@ -655,6 +655,10 @@ class URDFSurface(Plant):
         fx, fy, fz = self._contact[0], self._contact[1], self._contact[2]
         return math.sqrt(fx * fx + fy * fy + fz * fz)
 
+    def true_position(self) -> list[float]:
+        """Joint positions in ``joint_names`` order without noise (no noise is drawn)."""
+        return [*self._x[:self._n].tolist(), *self._locked_q.tolist()]
+
     def true_velocity(self) -> list[float]:
         """Joint velocities in ``joint_names`` order without noise (the locked ones: 0)."""
         return [*self._x[self._n:].tolist(), *[0.0] * self._locked_q.size]

@@ -71,7 +71,7 @@ from cr_control.core.packing import Layout
 from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.core.so3 import orientation_error
 from cr_control.models import spatial_chain as sc
-from cr_control.models.urdf import ChainModel, RobotModelError, load_chain
+from cr_control.models.urdf import ChainModel, RobotModelError, Tool, load_chain
 from cr_control.schemes.blocks.references import desired_motion, reference_gains
 
 #: Rotation rows of the posture projector are scaled by this length (m), see the docstring.
@@ -196,9 +196,11 @@ def scaled_chain(chain: np.ndarray, mass_scale: float, inertia_scale: float) -> 
 
 @lru_cache(maxsize=16)
 def _task_model(urdf: str, urdf_file: str, base: str, tip: str, gravity: tuple[float, ...],
-                mass_scale: float, inertia_scale: float, model_free: bool) -> TaskModel:
+                mass_scale: float, inertia_scale: float, model_free: bool,
+                tool: tuple | None = None) -> TaskModel:
     try:
-        chain_model = load_chain(urdf, urdf_file, base, tip, np.array(gravity))
+        chain_model = load_chain(urdf, urdf_file, base, tip, np.array(gravity),
+                                 tool=None if tool is None else Tool(*tool))
     except RobotModelError as exc:
         raise ParameterError(str(exc)) from None
     packed = sc.SpatialChain.from_chain(chain_model).chain
@@ -226,11 +228,16 @@ def _task_model(urdf: str, urdf_file: str, base: str, tip: str, gravity: tuple[f
 
 def task_model(values: dict, model_free: bool = False) -> TaskModel:
     """The task model of the robot named by the ROBOT_PARAMETERS ``values`` (cached;
-    ParameterError with a one-line reason if the robot cannot be built)."""
+    ParameterError with a one-line reason if the robot cannot be built). With a wrist sensor
+    carrying a tool (``sensor_frame`` and ``tool_mass`` > 0, issue 24) the tool replaces what
+    the URDF mounts beyond the sensor (:class:`cr_control.models.urdf.Tool`: a point mass at
+    ``tool_com``), as on the arm it carries."""
+    frame, mass = values.get("sensor_frame", ""), float(values.get("tool_mass", 0.0))
+    tool = (frame, mass, tuple(float(c) for c in values["tool_com"])) if frame and mass > 0 else None
     return _task_model(values["robot_description"], values["urdf_file"], values["base_link"],
                        values["tip_link"], tuple(float(g) for g in values["gravity"]),
                        float(values["model_mass_scale"]), float(values["model_inertia_scale"]),
-                       model_free)
+                       model_free, tool)
 
 
 def status_fields(model: TaskModel) -> tuple[list[str], list[str]]:

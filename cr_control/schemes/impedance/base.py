@@ -18,6 +18,13 @@ an unknown robot holds still.
 Targets: :meth:`TaskSpaceController.set_target_pose` and :meth:`set_target_wrench` (the
 node's ``~/target_pose`` and ``~/target_wrench``) take effect from the next cycle
 (:mod:`cr_control.schemes.blocks.references`).
+
+Wrist sensor (issue 24): with ``sensor_frame``, ``tool_mass``, ``ft_bias`` or
+``zero_ft_at_start`` set, the wrench given to :meth:`compute` (force, or force and torque, in
+the sensor frame) becomes the contact force in the base frame, f = R_S (F_S - b_F) - m g,
+before the law sees it; :meth:`zero_ft` zeroes the bias
+(:mod:`cr_control.schemes.blocks.wrist_sensor`). Without them the force goes to the law as
+given, bit for bit.
 """
 
 from __future__ import annotations
@@ -26,10 +33,11 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError, resolve
-from cr_control.schemes.blocks import references
+from cr_control.schemes.blocks import references, wrist_sensor
 from cr_control.schemes.blocks.references import TARGETS, reference_gains, reference_state
 from cr_control.schemes.blocks.task_space import (
     NULL_SPACE_GAINS,
@@ -120,8 +128,9 @@ class TaskSpaceController(Controller):
         own = {"joint_names": JOINT_NAMES, "max_effort": max_effort_on(
             next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model)}
         common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
-        return (common + cls.robot_parameters() + cls.reference_parameters(model.m, thesis)
-                + NULL_SPACE_PARAMETERS + cls.law_parameters(model, thesis))
+        return (common + cls.robot_parameters() + wrist_sensor.PARAMETERS
+                + cls.reference_parameters(model.m, thesis) + NULL_SPACE_PARAMETERS
+                + cls.law_parameters(model, thesis))
 
     @classmethod
     def reference_parameters(cls, m: int, thesis: bool) -> list[Param]:
@@ -196,6 +205,13 @@ class TaskSpaceController(Controller):
         self.targets[TARGETS.offset("quaternion")] = 1.0
         self._output = KernelOutput(self)
         self._kernel = type(self).kernel
+        self._hold_data = None
+        self._new_wrist_sensor()
+
+    def _new_wrist_sensor(self) -> None:
+        """The wrist sensor's compensation and zeroing state, as at start."""
+        self.wrist = wrist_sensor.WristSensor(self.values, self.model)
+        self.wrist.log = lambda message: self.log_info(f"{self.scheme}: {message}")
 
     def status_field_names(self) -> list[str]:
         return self._status
@@ -239,6 +255,24 @@ class TaskSpaceController(Controller):
             "posture_given": float(len(posture) > 0)}, common.view(self.gains, "reference"))
         self.pack_law_gains(self.gains[common.size:])
 
+    @property
+    def reads_wrench(self) -> bool:
+        """True if the law is given the sensor's force and torque (a wrist sensor to
+        compensate), False if the force alone (the ideal sensor)."""
+        return self.wrist.active
+
+    def zero_ft(self) -> tuple[bool, str]:
+        """Start zeroing the wrist sensor (``~/zero_ft``): (accepted, message)."""
+        desired = None
+        if self._last is not None and "f_d_x" in self.reference_fields:
+            i = self.reference_fields.index("f_d_x") - 1
+            desired = self._last.reference[i:i + self.model.m]
+        return self.wrist.request_zero(desired)
+
+    def warm_up(self) -> None:
+        super().warm_up()
+        self._new_wrist_sensor()    # the throw-away state must not start its zeroing
+
     def pack_law_gains(self, out: np.ndarray) -> None:
         """Pack the scheme's own gains into ``out`` (default: law_gains_layout by name)."""
         self.law_gains.pack(self.law_gain_values(), out)
@@ -261,6 +295,44 @@ class TaskSpaceController(Controller):
     # -- the cycle ---------------------------------------------------------------------------------
     def compute(self, t, dt, q, v, force) -> ControlOutput:
         out = self._output.new()
+        if self.wrist.active:
+            force = self.wrist.compensate(t, q, v, force)
+            if self.wrist.holding:
+                return self._hold(q, v, force, out)
+            t -= self.wrist.law_start
+        views = self.cycle(t, dt, q, v, force, out)
+        if self.wrist.at_start and t < wrist_sensor.HOLD_BLEND_S:
+            # from the hold's G(q) to the law's command without a jump (smoothstep)
+            G = self._gravity(q)
+            views.command[:] = G + wrist_sensor.blend(t / wrist_sensor.HOLD_BLEND_S) * (
+                views.command - G)
+            if len(self._command_slots) == self.n_joints:
+                views.status[self._command_slots] = views.command
+        return views
+
+    def cycle(self, t, dt, q, v, force, out: np.ndarray) -> ControlOutput:
+        """The law's cycle into the output vector ``out`` (the contact force ``force`` in
+        the base frame): the scheme's kernel; a scheme with more to do overrides this."""
         self._kernel(self.model.chain, self.gains, self.internal, self.targets, t, dt, q, v,
                      force, out)
         return self._output.views(out)
+
+    def _gravity(self, q: np.ndarray) -> np.ndarray:
+        """G(q) of the URDF model with the tool, in command order (the start-up hold)."""
+        chain = self.model.chain_model
+        if self._hold_data is None:
+            self._hold_data = chain.model.createData()
+        G = pin.computeGeneralizedGravity(chain.model, self._hold_data, chain.configuration(q))
+        return np.asarray(G)[self.command_order.astype(int)]
+
+    def _hold(self, q: np.ndarray, v: np.ndarray, force: np.ndarray,
+              out: np.ndarray) -> ControlOutput:
+        """The start-up zeroing's cycle (:mod:`cr_control.schemes.blocks.wrist_sensor`): the
+        arm held still by gravity compensation G(q) of the URDF model with the tool; the
+        law's cycle at its time zero (dt = 0: nothing integrates) fills reference and status.
+        Once the law runs, its command is blended in from G(q) over HOLD_BLEND_S."""
+        views = self.cycle(0.0, 0.0, q, v, force, out)
+        views.command[:] = self._gravity(q)
+        if len(self._command_slots) == self.n_joints:
+            views.status[self._command_slots] = views.command
+        return views

@@ -243,8 +243,7 @@ class NNAdaptiveImpedanceController(SlidingController):
         self._norms_at = (len(self.status_fields) - 1 - len(self._law_fields)
                           + 2 * self.model.m + 1)
 
-    def compute(self, t, dt, q, v, force):
-        vector = self._output.new()
+    def cycle(self, t, dt, q, v, force, vector):
         nn_adaptive_impedance_cycle(self.model.chain, self.gains, self.internal, self.targets,
                                     self.centres_q, self.centres_qv, t, dt, q, v, force, vector)
         out = self._output.views(vector)
