@@ -188,6 +188,19 @@ def test_start_up_zeroing_holds_the_arm_and_finds_the_bias():
     print(f"largest command step over the hold and the blend-in: {steps.max():.3f} N m/ms")
 
 
+def test_an_activation_after_the_start_does_not_zero_in_contact():
+    """A lifecycle activation (Controller.reset) once states were seen: no start-up hold
+    or zeroing (the arm may press on something by then), the bias in use is kept."""
+    plant = panda_plant()
+    c = panda_controller()
+    offline.run(c, plant, 0.2)                    # zeroed at start, wiping, in contact
+    bias = c.wrist.bias.copy()
+    c.reset(keep_time=False)
+    assert not c.wrist.holding and not c.wrist.at_start and c.wrist.law_start == 0.0
+    offline.run(c, plant, 0.05)
+    assert np.array_equal(c.wrist.bias, bias)
+
+
 # -- the wiping task: true contact force ----------------------------------------------------------
 @pytest.fixture(scope="module")
 def wiping():

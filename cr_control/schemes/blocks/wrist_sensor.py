@@ -377,6 +377,15 @@ class WristSensor:
                     self.force[:] = 0.0     # held still, touching at zero force
         return self.force
 
+    def skip_start(self) -> None:
+        """An activation after states were seen (a lifecycle switch, possibly in contact):
+        no start-up zeroing or hold, the bias in use kept (a property of the sensor, not of
+        the law) and the law's clock from the activation."""
+        self.at_start = False
+        self._zero = None
+        self.law_start = 0.0
+        self._set_bias_now(self.bias.copy())
+
     @property
     def holding(self) -> bool:
         """True during the start-up zeroing: the arm is to be held still, the law waits."""

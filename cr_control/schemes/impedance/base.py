@@ -273,6 +273,15 @@ class TaskSpaceController(Controller):
         super().warm_up()
         self._new_wrist_sensor()    # the throw-away state must not start its zeroing
 
+    def reset(self, keep_time: bool) -> None:
+        """:meth:`Controller.reset`; an activation after states were seen does not zero the
+        wrist sensor at start (``zero_ft_at_start``: the arm may be in contact by then) and
+        keeps the bias in use: call ``~/zero_ft`` out of contact for a new one."""
+        seen = self._t0 is not None
+        super().reset(keep_time)
+        if seen:
+            self.wrist.skip_start()
+
     def pack_law_gains(self, out: np.ndarray) -> None:
         """Pack the scheme's own gains into ``out`` (default: law_gains_layout by name)."""
         self.law_gains.pack(self.law_gain_values(), out)
