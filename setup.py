@@ -53,6 +53,7 @@ setup(
             "cr_benchmark = cr_control.tools.benchmark:main",
             "cr_param = cr_control.tools.param_tool:main",
             "cr_fuzz = cr_control.tools.fuzz:main",
+            "cr_sweep = cr_control.experiments.sweep:main",
         ]
         + [f"{name} = cr_control.nodes.controller_node:main_{name}" for name in SCHEMES],
     },

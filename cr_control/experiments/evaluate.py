@@ -1,0 +1,88 @@
+"""One point of a sweep: the offline loop, then the metrics ``cr_analyze`` prints.
+
+The run is :func:`cr_control.tools.offline.run` (bit-for-bit deterministic) of the scheme and
+plant :func:`cr_control.tools.offline.build_scheme` makes; its columns are handed to
+:func:`cr_control.analysis.analyze.metrics` as a session would be, so every metric has the
+name and the definition of ``cr_analyze``'s (e.g. ``pos_err_rms_last_half_m``). Left out:
+figures of the wall clock (``compute_time_*``: they differ from run to run) and of a
+recording's bookkeeping (publishers, stamps, sample counts).
+
+Status of a point (a stated rule):
+- ``failed``: the scheme or plant could not be built or stepped (the reason: the error);
+- ``diverged``: a state, force, command or status value became non-finite, or a joint
+  position or velocity norm went beyond the controller's own ``max_joint_position`` /
+  ``max_joint_velocity`` (states it would hold as absurd);
+- ``ok`` otherwise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cr_control.analysis import analyze
+from cr_control.tools import offline
+
+#: Metrics of a recording's bookkeeping or of the wall clock: not figures of a point.
+LEFT_OUT = ("controller", "samples", "duration_s", "data_warnings")
+LEFT_OUT_PREFIXES = ("compute_time_", "publishers_", "stamps_", "loop_")
+
+
+def as_session(run: offline.OfflineRun, scheme: str, command_names: list[str]) -> analyze.Session:
+    """The offline run as a loaded session: the controller's status and reference, the
+    joint states, the commands (efforts) and the measured wrench, stamped with run time."""
+    status = {"stamp": run.time, **{n: run.column(n) for n in run.status_fields[1:]}}
+    reference = {"stamp": run.time, **{n: run.column(n) for n in run.reference_fields[1:]}}
+    commands = analyze.JointSeries(run.time, list(command_names), np.full_like(run.command, np.nan),
+                                   np.full_like(run.command, np.nan), run.command)
+    wrench = analyze.WrenchSeries(run.time, run.force, np.zeros_like(run.force))
+    return analyze.Session(Path(f"{scheme}.mcap"), controller=scheme, status=status,
+                           reference=reference, joint_commands=commands, wrench=wrench)
+
+
+def point_metrics(run: offline.OfflineRun, scheme: str, command_names: list[str]) -> dict[str, float]:
+    """``cr_analyze``'s metrics of ``run`` (see the module docstring for what is left out)."""
+    values = analyze.metrics(as_session(run, scheme, command_names))
+    return {k: float(v) for k, v in values.items()
+            if k not in LEFT_OUT and not k.startswith(LEFT_OUT_PREFIXES)
+            and isinstance(v, (int, float))}
+
+
+def divergence(run: offline.OfflineRun, controller_values: dict[str, Any]) -> str:
+    """Why ``run`` diverged ('' if it did not; the rule of the module docstring)."""
+    for name in ("position", "velocity", "force", "command", "status"):
+        values = getattr(run, name)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            k = int(np.argmax(bad.any(axis=1)))
+            return f"non-finite {name} at t = {run.time[k]:.3f} s"
+    for name, limit in (("position", "max_joint_position"), ("velocity", "max_joint_velocity")):
+        bound = controller_values.get(limit)
+        if bound is None:
+            continue
+        norm = np.linalg.norm(getattr(run, name), axis=1)
+        over = norm > float(bound)
+        if over.any():
+            k = int(np.argmax(over))
+            return f"joint {name} norm {norm[k]:.3g} beyond {limit} {float(bound):g} at " \
+                   f"t = {run.time[k]:.3f} s"
+    return ""
+
+
+def run_point(scheme: str, robot: str | None, duration: float, controller_overrides: dict[str, Any],
+              plant_overrides: dict[str, Any]) -> dict[str, Any]:
+    """``{"status", "reason", metrics...}`` of one offline run (never raises)."""
+    try:
+        controller, plant = offline.build_scheme(scheme, controller_overrides, plant_overrides,
+                                                 robot)
+        names = list(plant.command_joints)
+        with np.errstate(all="ignore"):
+            run = offline.run(controller, plant, duration)
+            why = divergence(run, controller.values)
+            values = point_metrics(run, scheme, names)
+    except Exception as exc:                    # noqa: BLE001 - a point's failure is a result
+        text = str(exc).splitlines()[0] if str(exc) else ""
+        return {"status": "failed", "reason": f"{type(exc).__name__}: {text}"[:300]}
+    return {"status": "diverged" if why else "ok", "reason": why, **values}
