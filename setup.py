@@ -54,6 +54,7 @@ setup(
             "cr_param = cr_control.tools.param_tool:main",
             "cr_fuzz = cr_control.tools.fuzz:main",
             "cr_sweep = cr_control.experiments.sweep:main",
+            "cr_tune = cr_control.experiments.tune:main",
         ]
         + [f"{name} = cr_control.nodes.controller_node:main_{name}" for name in SCHEMES],
     },

@@ -3,7 +3,9 @@
 The run is :func:`cr_control.tools.offline.run` (bit-for-bit deterministic) of the scheme and
 plant :func:`cr_control.tools.offline.build_scheme` makes; its columns are handed to
 :func:`cr_control.analysis.analyze.metrics` as a session would be, so every metric has the
-name and the definition of ``cr_analyze``'s (e.g. ``pos_err_rms_last_half_m``). Left out:
+name and the definition of ``cr_analyze``'s (e.g. ``pos_err_rms_last_half_m``); a thesis plant's
+run also gets the robot sessions' ``contact_lost_s`` (time with no contact force, |f| as the
+normal force, after the first CONTACT_GRACE_S). Left out:
 figures of the wall clock (``compute_time_*``: they differ from run to run) and of a
 recording's bookkeeping (publishers, stamps, sample counts).
 
@@ -22,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from cr_control.analysis import analyze
+from cr_control.analysis import analyze, robot
 from cr_control.tools import offline
 
 #: Metrics of a recording's bookkeeping or of the wall clock: not figures of a point.
@@ -45,6 +47,11 @@ def as_session(run: offline.OfflineRun, scheme: str, command_names: list[str]) -
 def point_metrics(run: offline.OfflineRun, scheme: str, command_names: list[str]) -> dict[str, float]:
     """``cr_analyze``'s metrics of ``run`` (see the module docstring for what is left out)."""
     values = analyze.metrics(as_session(run, scheme, command_names))
+    if "contact_lost_s" not in values and len(run.time):
+        # the robot sessions' metric (cr_control.analysis.robot) on a thesis plant, with |f|
+        # as the normal force: a unilateral contact presses or is lost
+        lost = robot.contact_lost_intervals(run.time, np.linalg.norm(run.force, axis=1))
+        values["contact_lost_s"] = float(sum(b - a for a, b in lost))
     return {k: float(v) for k, v in values.items()
             if k not in LEFT_OUT and not k.startswith(LEFT_OUT_PREFIXES)
             and isinstance(v, (int, float))}
