@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from cr_control.analysis import analyze, robot
+from cr_control.analysis import analyze, chapter5, robot
 from cr_control.tools import offline
 
 #: Metrics of a recording's bookkeeping or of the wall clock: not figures of a point.
@@ -55,6 +55,21 @@ def point_metrics(run: offline.OfflineRun, scheme: str, command_names: list[str]
     return {k: float(v) for k, v in values.items()
             if k not in LEFT_OUT and not k.startswith(LEFT_OUT_PREFIXES)
             and isinstance(v, (int, float))}
+
+
+def chapter5_metrics(run: offline.OfflineRun, scheme: str, controller_values: dict[str, Any],
+                     plant_overrides: dict[str, Any]) -> dict[str, float]:
+    """``cr_analyze``'s chapter 5 figures (:func:`cr_control.analysis.chapter5.contact_metrics`:
+    separation time, force after the disturbance...), those whose names the generic metrics
+    do not already use."""
+    from cr_control.schemes.registry import default_scenario
+    from cr_sim.plants.registry import SCENARIOS
+
+    plant_values = {p.name: p.default for p in SCENARIOS[default_scenario(scheme)][0]}
+    plant_values.update(offline.scheme_plant_overrides(scheme, plant_overrides))
+    values = chapter5.contact_metrics(chapter5.from_offline(run, scheme, controller_values,
+                                                            plant_values))
+    return {k: float(v) for k, v in values.items() if k not in ("pos_err_rms_m",)}
 
 
 def divergence(run: offline.OfflineRun, controller_values: dict[str, Any]) -> str:
@@ -89,6 +104,8 @@ def run_point(scheme: str, robot: str | None, duration: float, controller_overri
             run = offline.run(controller, plant, duration)
             why = divergence(run, controller.values)
             values = point_metrics(run, scheme, names)
+            if robot is None and chapter5.is_chapter5(run.status_fields):
+                values.update(chapter5_metrics(run, scheme, controller.values, plant_overrides))
     except Exception as exc:                    # noqa: BLE001 - a point's failure is a result
         text = str(exc).splitlines()[0] if str(exc) else ""
         return {"status": "failed", "reason": f"{type(exc).__name__}: {text}"[:300]}

@@ -4,8 +4,9 @@ cores against 1. Run it on a quiet machine::
 
     python -m cr_control.experiments.measure --points 8 --duration 4
 
-Per-point overhead = (wall time of the points on Ray with one CPU, workers already up) / points
-- the same points' offline loop in this process, per point, relative to that. Parallel
+Per-point overhead = (wall time of the points on Ray with one CPU, workers already up - the
+time spent inside the tasks) / points, relative to a point's time inside its task (both
+measured in the same run, so the machine's load cancels out mostly). Parallel
 efficiency = T(1 CPU) / (2 T(2 CPUs)) over the same points, workers already up (their start,
 a one-time cost per worker, is printed apart). The load average is printed alongside.
 """
@@ -40,10 +41,27 @@ def _rss_mb(root: int) -> tuple[float, int]:
     return total / 1024, count
 
 
-def _timed(jobs, scheme: str, duration: float, cpus: int, chunk: int) -> float:
+def timed_chunk(scheme: str, duration: float, jobs) -> float:
+    """Seconds ``engine.run_chunk`` takes inside a worker (the body of a measuring task)."""
     t0 = time.perf_counter()
-    engine.run(scheme, None, duration, jobs, cpus, lambda _: None, chunk)
+    engine.run_chunk(scheme, None, duration, jobs)
     return time.perf_counter() - t0
+
+
+def _timed(jobs, scheme: str, duration: float, cpus: int, chunk: int) -> tuple[float, float]:
+    """(wall time of ``jobs`` on Ray, ``cpus`` tasks in flight; seconds spent inside tasks)."""
+    import ray
+
+    task = ray.remote(timed_chunk)
+    chunks = [jobs[i:i + chunk] for i in range(0, len(jobs), chunk)]
+    t0 = time.perf_counter()
+    inside, pending, queue = 0.0, [], list(chunks)
+    while queue or pending:
+        while queue and len(pending) < cpus:
+            pending.append(task.remote(scheme, duration, queue.pop(0)))
+        ready, pending = ray.wait(pending, num_returns=1)
+        inside += ray.get(ready[0])
+    return time.perf_counter() - t0, inside
 
 
 def main(argv: Iterable[str] | None = None) -> int:
@@ -73,12 +91,16 @@ def main(argv: Iterable[str] | None = None) -> int:
         print(f"{cpus} CPU: ray.init {started:.1f} s, first tasks (worker start, imports, "
               f"kernels) {time.perf_counter() - t0:.1f} s; {count} Ray processes, RSS "
               f"{rss:.0f} MB after init, {_rss_mb(os.getpid())[0]:.0f} MB with workers")
-        wall[cpus] = _timed(jobs, spec.scheme, spec.duration, cpus, max(1, len(jobs) // (2 * cpus)))
-        print(f"{cpus} CPU: {len(jobs)} points in {wall[cpus]:.2f} s")
+        chunk = engine.chunk_size(len(jobs), spec.duration, cpus)
+        wall[cpus], inside = _timed(jobs, spec.scheme, spec.duration, cpus, chunk)
+        print(f"{cpus} CPU: {len(jobs)} points in {wall[cpus]:.2f} s ({chunk} per task), "
+              f"{inside:.2f} s of it inside the tasks")
+        if cpus == 1:
+            overhead = (wall[1] - inside) / len(jobs)
+            print(f"per-point overhead on Ray (1 CPU, wall - time inside the tasks): "
+                  f"{overhead * 1e3:.1f} ms = {100 * overhead / (inside / len(jobs)):.2f} % of "
+                  f"a {args.duration:g} s point ({inside / len(jobs):.3f} s)")
         engine.stop()
-    overhead = wall[1] / len(jobs) - per_point
-    print(f"per-point overhead on Ray (1 CPU): {overhead * 1e3:.0f} ms = "
-          f"{100 * overhead / per_point:.1f} % of a {args.duration:g} s point")
     print(f"parallel efficiency 2 CPUs vs 1: {100 * wall[1] / (2 * wall[2]):.0f} %")
     print(f"load average after: {os.getloadavg()}")
     return 0

@@ -10,14 +10,17 @@ SPEC (YAML)::
     samples: 40                         # trials of the first round
     seed: 0
     set: {}                             # the tuning scenario (overrides), optional
+    scenarios: [{}, {plant.stiffness: 600.0}]   # optional: tune on the worst of these
     held_out: {plant.stiffness: 300.0}  # the validation scenario: another K_e or payload
 
 Search: Ray Tune, two rounds of seeded random search (``BasicVariantGenerator``): ``samples``
 trials over the ranges, then ``samples // 2`` in ranges narrowed around the best (a factor
-NARROW either way on a log range, a quarter of the range on a linear one). A trial is
-feasible when (a stated rule): its status is ok (no divergence), no contact is lost
-(``contact_lost_s`` == 0) and no command reached the clip (every ``tau_peak_*_Nm`` below the
-controller's ``max_effort``); an infeasible trial scores INFEASIBLE. The best feasible gains
+NARROW either way on a log range, a quarter of the range on a linear one). A trial runs
+each of ``scenarios`` (overrides on top of ``set``; default: ``set`` alone) and scores the
+worst metric of them. A trial is feasible when (a stated rule), in every scenario, its status
+is ok (no divergence), no contact is lost (``contact_lost_s`` == 0) and no command reached the
+clip (every ``tau_peak_*_Nm`` below the controller's ``max_effort``); an infeasible trial
+scores INFEASIBLE. The best feasible gains
 and the thesis defaults are then run on the tuning and the held-out scenario; DIR gets
 ``best.yaml`` (a ROS params file of the best gains, for ``--params-file``), ``tune.json``
 (the figures) and Ray Tune's own trial records (DIR/ray_tune).
@@ -39,7 +42,8 @@ from cr_control.core import ros_yaml
 from cr_control.experiments import engine
 from cr_control.experiments.spec import PLANT, Range, SpecError, Targets, parse_spec
 
-KEYS = ("scheme", "duration", "metric", "search", "samples", "seed", "set", "held_out")
+KEYS = ("scheme", "duration", "metric", "search", "samples", "seed", "set", "scenarios",
+        "held_out")
 INFEASIBLE = 1e6
 NARROW = 3.0
 
@@ -90,13 +94,20 @@ def load(path: Path) -> tuple[dict[str, Any], Targets]:
         node = name.partition(".")[0]
         if node == PLANT or targets.param(name).read_only:
             raise SpecError(f"search: {name} is not a live gain of {spec.scheme}")
+    scenarios = data.get("scenarios", [{}])
+    if not isinstance(scenarios, list) or not scenarios or \
+            not all(isinstance(x, dict) for x in scenarios):
+        raise SpecError("scenarios must be a non-empty list of override mappings")
+    for scenario in scenarios:
+        targets.check({**spec.fixed, **scenario})
     held_out = data["held_out"]
     if not isinstance(held_out, dict) or not held_out:
         raise SpecError("held_out must map node.param to the validation scenario's values")
     targets.check({**spec.fixed, **held_out})
     if not isinstance(data["metric"], str):
         raise SpecError(f"metric must be a metric name, got {data['metric']!r}")
-    return {"spec": spec, "metric": data["metric"], "held_out": dict(held_out)}, targets
+    return {"spec": spec, "metric": data["metric"], "held_out": dict(held_out),
+            "scenarios": [dict(x) for x in scenarios]}, targets
 
 
 def _space(ranges: dict[str, Range]) -> dict[str, Any]:
@@ -127,17 +138,21 @@ def search(cfg: dict[str, Any], targets: Targets, out: Path, cpus: int) -> list[
     metric = cfg["metric"]
     max_effort = _max_effort(spec.fixed, targets)
     scheme, robot, duration, fixed = spec.scheme, spec.robot, spec.duration, dict(spec.fixed)
+    scenarios = cfg["scenarios"]
 
     def trial(config: dict[str, float]) -> dict[str, Any]:
         from cr_control.experiments import evaluate
 
-        controller, plant = targets.split({**fixed, **config})
-        result = evaluate.run_point(scheme, robot, duration, controller, plant)
-        ok, why = feasible(result, max_effort)
-        value = result.get(metric, math.nan)
-        objective = float(value) if ok and math.isfinite(value) else INFEASIBLE
-        return {"objective": objective, "feasible": ok, "why": why,
-                **{k: v for k, v in result.items() if isinstance(v, float)}}
+        worst, ok, why = -math.inf, True, ""
+        for scenario in scenarios:
+            controller, plant = targets.split({**fixed, **scenario, **config})
+            result = evaluate.run_point(scheme, robot, duration, controller, plant)
+            good, reason = feasible(result, max_effort)
+            value = result.get(metric, math.nan)
+            ok, why = ok and good, why or reason
+            worst = max(worst, float(value)) if math.isfinite(value) else math.inf
+        objective = worst if ok and math.isfinite(worst) else INFEASIBLE
+        return {"objective": objective, "feasible": ok, "why": why, metric: worst}
 
     trials: list[dict[str, Any]] = []
     ranges: dict[str, Range] = dict(spec.vary)              # type: ignore[arg-type]
