@@ -35,7 +35,7 @@ CH3 = {"adaptive_impedance": "3.5.1", "robust_adaptive_impedance": "3.5.2",
 CH3_STIFFNESS = {"quick": [15.0, 150.0, 1500.0], "full": [15.0, 47.4, 150.0, 474.0, 1500.0]}
 CH3_MASS = {"quick": [[0.1, 0.1]], "full": [[0.05, 0.05], [0.1, 0.1], [0.15, 0.15]]}
 CH5 = ("impedance", "fuzzy_unidirectional")
-CH5_MAGNITUDE = {"quick": [2.0, 6.0, 8.0], "full": [2.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0]}
+CH5_MAGNITUDE = {"quick": [2.0, 6.3, 8.0], "full": [2.0, 4.0, 6.0, 6.2, 6.4, 6.6, 7.0, 8.0, 10.0]}
 CH5_DURATION = {"quick": [0.06, 0.2], "full": [0.06, 0.1, 0.2]}
 CH5_SECONDS = {"quick": 4.0, "full": 10.0}
 #: Chapter 3's verdict: the force error is "bounded" if it stays below this (N).

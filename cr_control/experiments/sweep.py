@@ -29,8 +29,9 @@ from cr_control.experiments.progress import Progress
 from cr_control.experiments.spec import SpecError, SweepSpec, Targets, load_spec
 from cr_control.experiments.store import Store
 
-#: Simulated seconds of the run that learns the metric names when the SPEC lists some.
-PROBE_S = 0.005
+#: Simulated seconds (at most) of the run that learns the metric names when the SPEC lists
+#: some (chapter 5's figures need the disturbance, at 2 s by default).
+PROBE_S = 10.0
 
 
 @dataclass
@@ -71,7 +72,8 @@ def check_metrics(spec: SweepSpec, targets: Targets, known: Iterable[str] | None
         from cr_control.experiments import evaluate
 
         controller, plant = targets.split(spec.fixed)
-        result = evaluate.run_point(spec.scheme, spec.robot, PROBE_S, controller, plant)
+        result = evaluate.run_point(spec.scheme, spec.robot, min(PROBE_S, spec.duration),
+                                     controller, plant)
         if result["status"] == "failed":
             raise SpecError(f"{spec.scheme} does not run: {result['reason']}")
         known = result

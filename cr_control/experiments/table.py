@@ -16,9 +16,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-import pyarrow as pa
-import pyarrow.parquet as pq
-
 FIXED = ("point",)
 STATUS = ("status", "reason")
 
@@ -70,7 +67,9 @@ def write_csv(path: Path, names: list[str], table: list[dict[str, Any]]) -> None
             writer.writerow([_cell(row[n]) for n in names])
 
 
-def _arrow_type(values: list[Any]) -> pa.DataType:
+def _arrow_type(values: list[Any]) -> Any:
+    import pyarrow as pa
+
     if all(isinstance(v, bool) for v in values):
         return pa.bool_()
     if all(isinstance(v, int) and not isinstance(v, bool) for v in values):
@@ -83,6 +82,9 @@ def _arrow_type(values: list[Any]) -> pa.DataType:
 
 
 def write_parquet(path: Path, names: list[str], table: list[dict[str, Any]]) -> None:
+    import pyarrow as pa  # lazy: the rest of the package needs no pyarrow
+    import pyarrow.parquet as pq
+
     arrays = []
     for name in names:
         values = [row[name] for row in table]
