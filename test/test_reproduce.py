@@ -52,6 +52,16 @@ def test_chapter3_verdict_needs_contact_and_a_decreasing_error():
     assert lost[0]["measured"]["pos_err_rms_5_10s_mm"] == pytest.approx(12.6)
 
 
+def test_the_thesis_point_is_picked_from_a_map_with_link_mass():
+    rows = [{"plant.stiffness": 150.0, "plant.link_mass": m, "status": "ok",
+             "pos_err_rms_last_half_m": e, "pos_err_rms_m": 0.02, "f_err_x_max_N": 5.0,
+             "f_err_x_min_N": -2.8, "contact_lost_s": 0.0}
+            for m, e in (([0.05, 0.05], 0.0115), ([0.1, 0.1], 0.0126), ([0.15, 0.15], 0.0137))]
+    results = {f"ch3_{s}": SweepResult([], rows, 3, 0) for s in reproduce.CH3}
+    results |= {"ch5_impedance": ch5(8.0), "ch5_fuzzy_unidirectional": ch5(8.0)}
+    assert reproduce.claims(results)[0]["measured"]["pos_err_rms_5_10s_mm"] == pytest.approx(12.6)
+
+
 def test_report_is_self_contained(tmp_path):
     figure = tmp_path / "f.png"
     figure.write_bytes(PNG)

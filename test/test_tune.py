@@ -43,6 +43,7 @@ def test_feasibility_rule():
     assert not tune.feasible({**ok, "status": "diverged", "reason": "x"}, 100.0)[0]
     assert "contact lost" in tune.feasible({**ok, "contact_lost_s": 0.2}, 100.0)[1]
     assert "at the clip" in tune.feasible({**ok, "tau_peak_joint1_Nm": 100.0}, 100.0)[1]
+    assert "at its clip" in tune.feasible({**ok, "command_at_limit_s": 0.001}, 100.0)[1]
 
 
 def test_best_gains_file_is_a_params_file_the_node_takes(tmp_path):

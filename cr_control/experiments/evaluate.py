@@ -5,7 +5,8 @@ plant :func:`cr_control.tools.offline.build_scheme` makes; its columns are hande
 :func:`cr_control.analysis.analyze.metrics` as a session would be, so every metric has the
 name and the definition of ``cr_analyze``'s (e.g. ``pos_err_rms_last_half_m``); a thesis plant's
 run also gets the robot sessions' ``contact_lost_s`` (time with no contact force, |f| as the
-normal force, after the first CONTACT_GRACE_S). Left out:
+normal force, after the first CONTACT_GRACE_S) and ``command_at_limit_s`` (time some command
+sat at its clip: max_effort or the URDF effort). Left out:
 figures of the wall clock (``compute_time_*``: they differ from run to run) and of a
 recording's bookkeeping (publishers, stamps, sample counts).
 
@@ -72,6 +73,17 @@ def chapter5_metrics(run: offline.OfflineRun, scheme: str, controller_values: di
     return {k: float(v) for k, v in values.items() if k not in ("pos_err_rms_m",)}
 
 
+def at_limit_seconds(run: offline.OfflineRun, controller: Any, plant_joints: list[str]) -> float:
+    """Time (s) some command sat at its clip: +-max_effort, or the joint's URDF effort where
+    the scheme clips to it (``Controller.command_limits``)."""
+    limits = np.minimum(float(controller.values["max_effort"]), controller.command_limits)
+    order = list(controller.values["joint_names"]) or plant_joints
+    per_plant = np.array([limits[order.index(j)] if j in order else np.inf for j in plant_joints])
+    hit = (np.abs(run.command) >= per_plant * (1 - 1e-9)).any(axis=1)
+    period = float(np.median(np.diff(run.time))) if len(run.time) > 1 else 0.0
+    return float(hit.sum() * period)
+
+
 def divergence(run: offline.OfflineRun, controller_values: dict[str, Any]) -> str:
     """Why ``run`` diverged ('' if it did not; the rule of the module docstring)."""
     for name in ("position", "velocity", "force", "command", "status"):
@@ -104,6 +116,7 @@ def run_point(scheme: str, robot: str | None, duration: float, controller_overri
             run = offline.run(controller, plant, duration)
             why = divergence(run, controller.values)
             values = point_metrics(run, scheme, names)
+            values["command_at_limit_s"] = at_limit_seconds(run, controller, names)
             if robot is None and chapter5.is_chapter5(run.status_fields):
                 values.update(chapter5_metrics(run, scheme, controller.values, plant_overrides))
     except Exception as exc:                    # noqa: BLE001 - a point's failure is a result

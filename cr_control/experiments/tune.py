@@ -19,8 +19,8 @@ NARROW either way on a log range, a quarter of the range on a linear one). A tri
 each of ``scenarios`` (overrides on top of ``set``; default: ``set`` alone) and scores the
 worst metric of them. A trial is feasible when (a stated rule), in every scenario, its status
 is ok (no divergence), no contact is lost (``contact_lost_s`` == 0) and no command reached the
-clip (every ``tau_peak_*_Nm`` below the controller's ``max_effort``); an infeasible trial
-scores INFEASIBLE. The best feasible gains
+clip (``command_at_limit_s`` == 0: max_effort or the joint's URDF effort; every
+``tau_peak_*_Nm`` below ``max_effort``); an infeasible trial scores INFEASIBLE. The best feasible gains
 and the thesis defaults are then run on the tuning and the held-out scenario; DIR gets
 ``best.yaml`` (a ROS params file of the best gains, for ``--params-file``), ``tune.json``
 (the figures) and Ray Tune's own trial records (DIR/ray_tune).
@@ -54,6 +54,8 @@ def feasible(result: dict[str, Any], max_effort: float) -> tuple[bool, str]:
         return False, f"{result.get('status')}: {result.get('reason', '')}"
     if result.get("contact_lost_s", 0.0) > 0.0:
         return False, f"contact lost for {result['contact_lost_s']:.3f} s"
+    if result.get("command_at_limit_s", 0.0) > 0.0:
+        return False, f"a command at its clip for {result['command_at_limit_s']:.3f} s"
     peaks = {k: v for k, v in result.items() if k.startswith("tau_peak_")}
     over = [k for k, v in peaks.items() if not v < max_effort]
     if over:
