@@ -39,6 +39,7 @@ pytestmark = pytest.mark.skipif(shutil.which("ss") is None, reason="needs ss (ip
 
 def _env() -> dict[str, str]:
     env = dict(os.environ, RAY_AUTH_MODE="disabled", RAY_USAGE_STATS_ENABLED="0")
+    env.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)     # =0 refuses a second node
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
     return env
 

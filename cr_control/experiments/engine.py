@@ -91,7 +91,7 @@ def start(address: str | None = None, workers: int | None = None) -> int:
     """Start a local Ray instance of ``workers`` CPUs (default: this machine's cores) or
     join the cluster at ``address``; return the CPUs tasks may use. EngineError (one line)
     if it cannot."""
-    os.environ.update(COMMON_ENV)
+    _set_env(COMMON_ENV)
     import ray
 
     if ray.is_initialized():                # a caller (a test) started it
@@ -101,7 +101,7 @@ def start(address: str | None = None, workers: int | None = None) -> int:
                                "configure_logging": True}
     try:
         if address is None:
-            os.environ.update(LOCAL_ENV)
+            _set_env(LOCAL_ENV)
             ray.init(address="local", num_cpus=workers or os.cpu_count() or 1,
                      include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, **options)
         else:
@@ -120,12 +120,30 @@ def start(address: str | None = None, workers: int | None = None) -> int:
     return cpus if workers is None else min(cpus, workers)
 
 
+#: Environment variables start() set, with their values before (None: unset).
+_saved_env: dict[str, str | None] = {}
+
+
+def _set_env(values: dict[str, str]) -> None:
+    """Set ``values`` in this process's environment (read by ray when it starts; undone by
+    stop(), so that processes started later, e.g. a ``ray start``, do not inherit them)."""
+    for key, value in values.items():
+        _saved_env.setdefault(key, os.environ.get(key))
+        os.environ[key] = value
+
+
 def stop() -> None:
-    """Leave Ray (a local instance stops with it)."""
+    """Leave Ray (a local instance stops with it); undo start()'s environment."""
     import ray
 
     if ray.is_initialized():
         ray.shutdown()
+    for key, value in _saved_env.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+    _saved_env.clear()
 
 
 def chunk_size(points: int, duration: float, capacity: int) -> int:
