@@ -1,6 +1,6 @@
 """cr_sweep (cr_control.experiments): SPEC errors as one line, the same table bit for bit on
 1 and 2 workers and as plain in-process evaluation, resuming after a kill (only the missing
-points computed), and the parallel efficiency figures printed (not asserted).
+points computed), every socket of the local Ray instance on loopback (ss).
 
 The local Ray instance is started once for the module (2 CPUs, loopback only: see
 cr_control.experiments.engine); the points are 0.3 s of the chapter 3 plane.
@@ -9,11 +9,13 @@ cr_control.experiments.engine); the points are 0.3 s of the chapter 3 plane.
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from ray_net import non_loopback, tree
 
 from cr_control.experiments import engine, store
 from cr_control.experiments.points import points
@@ -107,6 +109,7 @@ def runs(tmp_path_factory):
         lines = (root / "two" / store.POINTS_FILE).read_text().splitlines(keepends=True)
         (killed / store.POINTS_FILE).write_text("".join(lines[:2]) + lines[2][:40])
         out["resumed"] = sweep(spec, targets, killed, workers=2, show_progress=False)
+        out["net"] = non_loopback(tree([os.getpid()]))     # Ray's processes are our children
     finally:
         engine.stop()
     out["root"] = root
@@ -135,6 +138,11 @@ def test_same_table_on_any_number_of_workers(runs):
                       *SPEC["metrics"]]
     print(f"6 points of {SPEC['duration']} s: in process {runs['serial_s']:.1f} s, Ray 1 task in "
           f"flight {runs['one_s']:.1f} s, 2 in flight {runs['two_s']:.1f} s")
+
+
+def test_local_ray_listens_and_connects_on_loopback_only(runs):
+    bad, wildcard = runs["net"]
+    assert not bad and wildcard == 0, (bad, wildcard)
 
 
 def test_resume_computes_only_the_missing_points(runs):

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
+from ray_net import non_loopback, tree, with_cmdline
 
 from cr_control.experiments import engine, table
 from cr_control.experiments.points import points
@@ -50,37 +51,6 @@ def _free_port(host: str) -> int:
         return s.getsockname()[1]
 
 
-def _children() -> dict[int, list[int]]:
-    out = subprocess.run(["ps", "-eo", "pid=,ppid="], capture_output=True, text=True).stdout
-    kids: dict[int, list[int]] = {}
-    for line in out.splitlines():
-        pid, ppid = map(int, line.split())
-        kids.setdefault(ppid, []).append(pid)
-    return kids
-
-
-def _tree(roots: list[int]) -> set[int]:
-    kids, seen, stack = _children(), set(), list(roots)
-    while stack:
-        pid = stack.pop()
-        if pid not in seen:
-            seen.add(pid)
-            stack += kids.get(pid, [])
-    return seen
-
-
-def _with_cmdline(text: str) -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if text in (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"):
-                    found.append(int(entry.name))
-            except OSError:
-                pass
-    return found
-
-
 def _kill(pids: set[int], grace: float) -> None:
     for sig, wait in ((signal.SIGTERM, grace), (signal.SIGKILL, 0.0)):
         for pid in pids:
@@ -104,27 +74,8 @@ def cluster():
                         *common], env=_env(), check=True, capture_output=True, timeout=180)
         yield f"{HEAD}:{port}", temp
     finally:
-        _kill(_tree(_with_cmdline(temp)), 3.0)
+        _kill(tree(with_cmdline(temp)), 3.0)
         shutil.rmtree(temp, ignore_errors=True)
-
-
-def _non_loopback(pids: set[int]) -> tuple[list[str], int]:
-    """Connections of ``pids`` through a non-loopback address; their wildcard listeners."""
-    out = subprocess.run(["ss", "-tanpH"], capture_output=True, text=True).stdout
-    bad, wildcard = [], 0
-    for line in out.splitlines():
-        fields = line.split()
-        if len(fields) < 6 or not any(f"pid={p}," in fields[-1] for p in pids):
-            continue
-        state, local, peer = fields[0], fields[3], fields[4]
-        if state == "LISTEN":
-            wildcard += local.startswith(("*:", "0.0.0.0:", "[::]:"))
-            continue
-        for address in (local, peer):
-            host = address.rsplit(":", 1)[0].strip("[]").removeprefix("::ffff:")
-            if not host.startswith("127."):
-                bad.append(line)
-    return bad, wildcard
 
 
 def test_sweep_through_a_cluster_equals_the_local_run_and_survives_a_node_kill(cluster, tmp_path):
@@ -140,16 +91,16 @@ def test_sweep_through_a_cluster_equals_the_local_run_and_survives_a_node_kill(c
     killed_after = None
     deadline = time.monotonic() + 240
     while proc.poll() is None and time.monotonic() < deadline:
-        ours = _tree(_with_cmdline(temp) + [proc.pid])
-        found, listeners = _non_loopback(ours)
+        ours = tree(with_cmdline(temp) + [proc.pid])
+        found, listeners = non_loopback(ours)
         bad += found
         wildcard = max(wildcard, listeners)
         done = out / "points.jsonl"
         lines = done.read_text().count("\n") if done.exists() else 0
         if killed_after is None and lines:
-            node = [p for p in _with_cmdline(f"--node_ip_address={NODE}")
+            node = [p for p in with_cmdline(f"--node_ip_address={NODE}")
                     if "raylet" in Path(f"/proc/{p}/cmdline").read_bytes().decode(errors="replace")]
-            _kill(_tree(node), 0.0)          # the second node dies with its workers
+            _kill(tree(node), 0.0)          # the second node dies with its workers
             killed_after = lines
         time.sleep(0.3)
     output = proc.communicate(timeout=30)[0] if proc.poll() is not None else ""

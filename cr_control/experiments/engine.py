@@ -102,8 +102,19 @@ def start(address: str | None = None, workers: int | None = None) -> int:
     try:
         if address is None:
             _set_env(LOCAL_ENV)
+            # ray reads the variable once, when first imported: if that was before (in this
+            # process), its constant is set here too (restored by stop())
+            from ray._private import ray_constants
+
+            _saved_constants.setdefault("ENABLE_RAY_CLUSTER", ray_constants.ENABLE_RAY_CLUSTER)
+            ray_constants.ENABLE_RAY_CLUSTER = False
             ray.init(address="local", num_cpus=workers or os.cpu_count() or 1,
                      include_dashboard=False, object_store_memory=OBJECT_STORE_BYTES, **options)
+            node_ip = ray.util.get_node_ip_address()
+            if not node_ip.startswith("127."):
+                ray.shutdown()
+                raise EngineError(f"Ray took {node_ip} as this node's address, not loopback: "
+                                  "refused (the network rule of DESIGN.md)")
         else:
             host, _ = check_reachable(address)
             if _is_loopback(host):
@@ -120,8 +131,10 @@ def start(address: str | None = None, workers: int | None = None) -> int:
     return cpus if workers is None else min(cpus, workers)
 
 
-#: Environment variables start() set, with their values before (None: unset).
+#: Environment variables start() set, with their values before (None: unset), and ray
+#: constants it changed, with theirs.
 _saved_env: dict[str, str | None] = {}
+_saved_constants: dict[str, Any] = {}
 
 
 def _set_env(values: dict[str, str]) -> None:
@@ -144,6 +157,12 @@ def stop() -> None:
         else:
             os.environ[key] = value
     _saved_env.clear()
+    if _saved_constants:
+        from ray._private import ray_constants
+
+        for key, value in _saved_constants.items():
+            setattr(ray_constants, key, value)
+        _saved_constants.clear()
 
 
 def chunk_size(points: int, duration: float, capacity: int) -> int:
