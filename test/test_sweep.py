@@ -26,7 +26,6 @@ SPEC = {"scheme": "adaptive_impedance", "duration": 0.3,
         "vary": {"plant.stiffness": [75.0, 150.0, 600.0], "adaptive_impedance.Q_c": [5, 50]},
         "metrics": ["pos_err_rms_last_half_m", "f_err_x_rms_N", "tau_peak_joint1_Nm"]}
 
-
 @pytest.mark.parametrize("change, message", [
     ({"vary": {"adaptive_impedance.Q_zz": [1]}}, "unknown parameter 'Q_zz' of adaptive_impedance"),
     ({"vary": {"robot_arm.Q_c": [1]}}, "no node 'robot_arm'"),
@@ -159,3 +158,4 @@ def test_another_spec_in_the_same_directory_is_refused(runs):
     spec, targets = parse_spec({**SPEC, "duration": 0.4})
     with pytest.raises(SpecError, match="holds another sweep"):
         sweep(spec, targets, runs["root"] / "one", show_progress=False)
+

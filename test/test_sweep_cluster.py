@@ -31,8 +31,9 @@ from cr_control.experiments.sweep import jobs_of
 ROOT = Path(__file__).resolve().parents[1]
 RAY = str(Path(sys.executable).with_name("ray"))
 HEAD, NODE = "127.0.0.2", "127.0.0.3"
-SPEC = {"scheme": "adaptive_impedance", "duration": 0.5,
-        "vary": {"plant.stiffness": [75.0, 150.0, 300.0, 600.0], "adaptive_impedance.Q_c": [5, 50]},
+SPEC = {"scheme": "adaptive_impedance", "duration": 1.5,
+        "vary": {"plant.stiffness": [50.0, 75.0, 150.0, 300.0, 600.0, 900.0],
+                 "adaptive_impedance.Q_c": [5, 50]},
         "metrics": ["pos_err_rms_last_half_m", "f_err_x_rms_N"]}
 
 pytestmark = pytest.mark.skipif(shutil.which("ss") is None, reason="needs ss (iproute2)")
@@ -90,11 +91,13 @@ def test_sweep_through_a_cluster_equals_the_local_run_and_survives_a_node_kill(c
     wildcard = 0
     killed_after = None
     deadline = time.monotonic() + 240
+    checked = 0.0
     while proc.poll() is None and time.monotonic() < deadline:
-        ours = tree(with_cmdline(temp) + [proc.pid])
-        found, listeners = non_loopback(ours)
-        bad += found
-        wildcard = max(wildcard, listeners)
+        if time.monotonic() - checked > 1.0:         # ss: about once a second
+            found, listeners = non_loopback(tree(with_cmdline(temp) + [proc.pid]))
+            bad += found
+            wildcard = max(wildcard, listeners)
+            checked = time.monotonic()
         done = out / "points.jsonl"
         lines = done.read_text().count("\n") if done.exists() else 0
         if killed_after is None and lines:
@@ -102,13 +105,13 @@ def test_sweep_through_a_cluster_equals_the_local_run_and_survives_a_node_kill(c
                     if "raylet" in Path(f"/proc/{p}/cmdline").read_bytes().decode(errors="replace")]
             _kill(tree(node), 0.0)          # the second node dies with its workers
             killed_after = lines
-        time.sleep(0.3)
+        time.sleep(0.1)
     output = proc.communicate(timeout=30)[0] if proc.poll() is not None else ""
     if proc.returncode is None:
         proc.kill()
         pytest.fail("the sweep did not finish in 240 s")
     assert proc.returncode == 0, output
-    assert killed_after is not None and killed_after < 8, killed_after
+    assert killed_after is not None and killed_after < 12, killed_after
     # every point, and the same table as the local run (the offline loop in this process)
     spec, targets = parse_spec(SPEC)
     local = engine.run_chunk(spec.scheme, None, spec.duration,
@@ -116,6 +119,6 @@ def test_sweep_through_a_cluster_equals_the_local_run_and_survives_a_node_kill(c
     table.write(tmp_path, local, list(spec.vary), spec.metrics)
     assert (out / "results.csv").read_bytes() == (tmp_path / "results.csv").read_bytes()
     assert not bad, bad
-    print(f"cluster sweep: second node killed after {killed_after} of 8 points, none lost; "
+    print(f"cluster sweep: second node killed after {killed_after} of 12 points, none lost; "
           f"0 connections off loopback; {wildcard} wildcard listeners of the test cluster "
           "(gcs_server/raylet bind all interfaces unless the node IP is 127.0.0.1)")

@@ -31,6 +31,7 @@ def _load(tmp_path, **change):
     ({"held_out": {"plant.stiffness": -5.0}}, "plant: stiffness must be"),
     ({"held_out": {}}, "held_out must map"),
     ({"search": {"adaptive_impedance.Q_c": {"low": 1, "high": 1e6}}}, "out of bounds"),
+    ({"metric": "pos_err_rms_last_quarter_m"}, "unknown metric"),
 ])
 def test_bad_tune_spec(tmp_path, change, message):
     with pytest.raises(SpecError, match=message):

@@ -108,6 +108,10 @@ def load(path: Path) -> tuple[dict[str, Any], Targets]:
     targets.check({**spec.fixed, **held_out})
     if not isinstance(data["metric"], str):
         raise SpecError(f"metric must be a metric name, got {data['metric']!r}")
+    from cr_control.experiments.sweep import check_metrics
+
+    spec.metrics = [data["metric"]]
+    check_metrics(spec, targets, None)          # a short run: is the metric one a run has?
     return {"spec": spec, "metric": data["metric"], "held_out": dict(held_out),
             "scenarios": [dict(x) for x in scenarios]}, targets
 
@@ -151,6 +155,8 @@ def search(cfg: dict[str, Any], targets: Targets, out: Path, cpus: int) -> list[
             result = evaluate.run_point(scheme, robot, duration, controller, plant)
             good, reason = feasible(result, max_effort)
             value = result.get(metric, math.nan)
+            if not math.isfinite(value):
+                good, reason = False, reason or f"{metric} is {value}"
             ok, why = ok and good, why or reason
             worst = max(worst, float(value)) if math.isfinite(value) else math.inf
         objective = worst if ok and math.isfinite(worst) else INFEASIBLE
