@@ -56,6 +56,9 @@ setup(
             "cr_lifecycle = cr_control.tools.lifecycle_tool:main",
             "cr_fuzz = cr_control.tools.fuzz:main",
             "cr_identify_tool = cr_control.tools.identify_tool:main",
+            "cr_sweep = cr_control.experiments.sweep:main",
+            "cr_tune = cr_control.experiments.tune:main",
+            "cr_reproduce = cr_control.experiments.reproduce:main",
         ]
         + [f"{name} = cr_control.nodes.controller_node:main_{name}" for name in SCHEMES],
     },

@@ -28,6 +28,12 @@ measured joints through the controller's model (Pinocchio), as on a robot.
     cr_identify_tool --robot panda --out tool.yaml
     cr_session --robot panda --params-file tool.yaml
 
+On a robot (``--controller NODE``): the same poses and least squares through the topics of
+a running task-space controller (:mod:`cr_control.tools.identify_ros`): its URDF and
+``sensor_frame`` from its parameters, the poses around where the tip is.
+
+    cr_identify_tool --controller /adaptive_impedance --domain-id 12 --out tool.yaml
+
 Bad input: one line on stderr, exit code 2.
 """
 
@@ -43,6 +49,7 @@ import numpy as np
 import pinocchio as pin
 
 from cr_control.core.parameters import ParameterError
+from cr_control.core.ros_env import domain_id_arg
 from cr_control.schemes.blocks.wrist_sensor import frame_rotation
 from cr_control.tools import robots
 
@@ -101,21 +108,47 @@ def estimate(gravity_s: np.ndarray, wrenches: np.ndarray) -> ToolEstimate:
                         rms(A_f @ x_f - y_f), rms(A_t @ x_t - y_t))
 
 
-def pose_targets(r: robots.Robot) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(tip position, quaternion [w, x, y, z]) of each pose: the home tip, the home
-    orientation tilted by POSE_TILT_DEG about the axes of POSES (base frame)."""
-    from cr_control.models.urdf import load_chain
-
-    chain = load_chain("", r.urdf_file, r.base_link, r.tip_link)
-    home = chain.tip_pose(np.array(r.home))
+def tilted_poses(start: pin.SE3) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(tip position, quaternion [w, x, y, z]) of each pose: the tip where ``start`` has it,
+    the orientation tilted by POSE_TILT_DEG about the axes of POSES (base frame)."""
     out = []
     for axis in POSES:
         a = np.array(axis, dtype=float)
         R = np.eye(3) if not a.any() else pin.AngleAxis(math.radians(POSE_TILT_DEG),
                                                          a / np.linalg.norm(a)).matrix()
-        quat = pin.Quaternion(R @ home.rotation)
-        out.append((home.translation.copy(), np.array([quat.w, quat.x, quat.y, quat.z])))
+        quat = pin.Quaternion(R @ start.rotation)
+        out.append((start.translation.copy(), np.array([quat.w, quat.x, quat.y, quat.z])))
     return out
+
+
+def pose_targets(r: robots.Robot) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`tilted_poses` around the robot's home pose."""
+    from cr_control.models.urdf import load_chain
+
+    chain = load_chain("", r.urdf_file, r.base_link, r.tip_link)
+    return tilted_poses(chain.tip_pose(np.array(r.home)))
+
+
+def identify_on_robot(controller: str, settle: float, average: float,
+                      timeout_s: float) -> tuple[ToolEstimate, str]:
+    """The poses through the ROS topics of a running controller (:mod:`identify_ros`); the
+    estimate and the sensor frame."""
+    from cr_control.models.urdf import load_chain
+    from cr_control.tools.identify_ros import RobotPoses
+
+    client = RobotPoses(controller, timeout_s)
+    try:
+        names = ["robot_description", "urdf_file", "base_link", "tip_link", "sensor_frame",
+                 "gravity"]
+        p = client.parameters(names)
+        if not p["sensor_frame"]:
+            raise ValueError(f"{controller} has no sensor_frame: set the wrist sensor's link")
+        chain = load_chain(p["robot_description"], p["urdf_file"], p["base_link"], p["tip_link"])
+        g_s, wrenches = client.run(chain, p["sensor_frame"], np.array(p["gravity"], dtype=float),
+                                   tilted_poses, settle, average)
+    finally:
+        client.close()
+    return estimate(g_s, wrenches), p["sensor_frame"]
 
 
 def identify_in_simulator(robot_name: str, settle: float, average: float,
@@ -178,7 +211,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--settle", type=float, default=3.0, help="settling time per pose (s)")
     p.add_argument("--average", type=float, default=1.0, help="averaging time per pose (s)")
     p.add_argument("--noise-seed", type=int, default=None, help="the simulated sensor's seed")
+    p.add_argument("--controller", metavar="NODE",
+                   help="on a robot (or a session over ROS): the running task-space controller "
+                        "that holds the poses, e.g. /adaptive_impedance")
+    p.add_argument("--domain-id", type=domain_id_arg, help="ROS_DOMAIN_ID (with --controller)")
+    p.add_argument("--timeout", type=float, default=30.0,
+                   help="wait at most this for the controller and the topics (s)")
     args = p.parse_args(argv)
+    if args.controller:
+        return _main_on_robot(args)
     try:
         if args.robot not in robots.ROBOTS:
             raise ValueError(f"unknown robot {args.robot!r}; known: {sorted(robots.ROBOTS)}")
@@ -200,6 +241,29 @@ def main(argv: list[str] | None = None) -> int:
           f"com {np.round(est.com, 4).tolist()} m ({com_err:.2f} mm off), bias "
           f"{np.round(est.bias, 3).tolist()} (force within {bias_err[:3].max():.3f} N, torque "
           f"within {bias_err[3:].max():.4f} N m); written to {args.out}")
+    return 0
+
+
+def _main_on_robot(args: argparse.Namespace) -> int:
+    """``--controller``: the poses through the ROS topics; the estimate written and printed."""
+    from cr_control.core.ros_env import isolate_this_process
+    from cr_control.tools.param_tool import full_node_name
+
+    try:
+        node = full_node_name(args.controller)
+        if not (0.0 <= args.settle <= 60.0 and 0.01 <= args.average <= 60.0):
+            raise ValueError("--settle must be in [0, 60] s and --average in [0.01, 60] s")
+        isolate_this_process(args.domain_id)
+        est, frame = identify_on_robot(node, args.settle, args.average, args.timeout)
+        note = (f"{node} over ROS, {len(POSES)} poses, {args.settle:g} s settle, "
+                f"{args.average:g} s average")
+        args.out.write_text(params_file(node.rpartition("/")[2], frame, est, note))
+    except (ValueError, ParameterError, OSError, TimeoutError) as exc:
+        print(f"cr_identify_tool: {exc}", file=sys.stderr)
+        return 2
+    print(f"tool mass {est.mass:.4f} kg, com {np.round(est.com, 4).tolist()} m, bias "
+          f"{np.round(est.bias, 3).tolist()} (residual RMS {est.force_residual:.3g} N, "
+          f"{est.torque_residual:.3g} N m); written to {args.out}")
     return 0
 
 

@@ -121,13 +121,12 @@ def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None)
     return {**thesis, **(overrides or {})}
 
 
-def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
-               plant_overrides: dict[str, Any] | None = None, period: float = 1e-3,
-               robot: str | None = None,
-               hook: Callable[[int, float, Controller, Plant], None] | None = None) -> OfflineRun:
-    """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
-    on ``robot``'s wiping task (the parameters of config/robots/<robot>/, see
-    :mod:`cr_control.tools.robots`)."""
+def build_scheme(scheme: str, controller_overrides: dict[str, Any] | None = None,
+                 plant_overrides: dict[str, Any] | None = None,
+                 robot: str | None = None) -> tuple[Controller, Plant]:
+    """The controller and plant :func:`run_scheme` steps: ``scheme`` on its thesis plant
+    with thesis defaults and overrides, or on ``robot``'s wiping task (the parameters of
+    config/robots/<robot>/, see :mod:`cr_control.tools.robots`)."""
     if robot is None:
         plant = make_plant(default_scenario(scheme), scheme_plant_overrides(scheme, plant_overrides))
         controller = make_controller(scheme, controller_overrides)
@@ -138,4 +137,14 @@ def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any
                                                                 **(plant_overrides or {})})
         controller = make_controller(scheme, {**robots.controller_values(r, scheme),
                                               **(controller_overrides or {})})
+    return controller, plant
+
+
+def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
+               plant_overrides: dict[str, Any] | None = None, period: float = 1e-3,
+               robot: str | None = None,
+               hook: Callable[[int, float, Controller, Plant], None] | None = None) -> OfflineRun:
+    """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
+    on ``robot``'s wiping task (see :func:`build_scheme`)."""
+    controller, plant = build_scheme(scheme, controller_overrides, plant_overrides, robot)
     return run(controller, plant, duration, period, hook)

@@ -1,0 +1,141 @@
+"""cr_identify_tool on a robot: the same poses and least squares through the topics (issue 24).
+
+What a real robot (or a simulated plant over ROS, ``cr_session``) offers: a running
+task-space controller, ``/joint_states`` and the wrist sensor's wrench
+(``/force_torque_sensor_broadcaster/wrench``, in the sensor's frame). The tool
+
+1. reads the controller's robot (``robot_description`` / ``urdf_file``, ``base_link``,
+   ``tip_link``) and ``sensor_frame`` through its parameter services;
+2. streams each pose of :func:`cr_control.tools.identify_tool.tilted_poses` around the tip's
+   pose at the start to ``<controller>/target_pose`` at 100 Hz (so the controller's
+   ``target_timeout`` never sees it stale), waits ``settle`` s, then averages the wrench
+   and g_i = R_i^T g over ``average`` s, R_i from each measured state through the URDF
+   (Pinocchio);
+3. goes back to the start pose and returns the averages for the least squares.
+
+The arm must be in free space, the controller asking no contact force (a ``target_wrench``
+of zero is sent before the first pose). The controller's own compensation does not matter:
+the raw sensor reading is used.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from cr_control.core import topics
+
+#: Targets are sent this often (s): well inside any target_timeout.
+TARGET_PERIOD_S = 0.01
+
+
+class RobotPoses:
+    """A ROS client that runs the poses on the controller node ``controller``."""
+
+    def __init__(self, controller: str, timeout_s: float):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        rclpy.init(args=["cr_identify_tool"])
+        self.node = rclpy.create_node("cr_identify_tool")
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self.controller = controller
+        self.timeout_s = timeout_s
+        self.q: dict[str, float] = {}
+        self.wrench: tuple[str, np.ndarray] | None = None
+
+    def close(self) -> None:
+        import rclpy
+
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown()
+
+    def parameters(self, names: list[str]) -> dict:
+        """The controller's values of ``names`` (TimeoutError if it does not answer)."""
+        from rcl_interfaces.srv import GetParameters
+        from rclpy.parameter import parameter_value_to_python
+
+        from cr_control.tools.param_tool import call_service
+
+        result = call_service(self.node, self.executor, GetParameters,
+                              f"{self.controller}/get_parameters",
+                              GetParameters.Request(names=names), self.timeout_s)
+        return {n: parameter_value_to_python(v) for n, v in zip(names, result.values, strict=True)}
+
+    def _spin_until(self, done, what: str) -> None:
+        deadline = time.monotonic() + self.timeout_s
+        while not done():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"no {what} within {self.timeout_s:g} s (see --timeout)")
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def run(self, chain_model, sensor_frame: str, gravity: np.ndarray, poses, settle: float,
+            average: float) -> tuple[np.ndarray, np.ndarray]:
+        """(g_i in S, mean wrench in S) per pose; ``poses(start_pose)`` gives the targets."""
+        from geometry_msgs.msg import PoseStamped, WrenchStamped
+        from sensor_msgs.msg import JointState
+
+        from cr_control.nodes.qos import CONTROL_QOS, TARGET_QOS
+        from cr_control.schemes.blocks.wrist_sensor import frame_rotation
+
+        def on_state(msg: JointState) -> None:
+            self.q.update(zip(msg.name, msg.position, strict=False))
+
+        def on_wrench(msg: WrenchStamped) -> None:
+            f, t = msg.wrench.force, msg.wrench.torque
+            self.wrench = (msg.header.frame_id, np.array([f.x, f.y, f.z, t.x, t.y, t.z]))
+
+        self.node.create_subscription(JointState, topics.JOINT_STATES, on_state, CONTROL_QOS)
+        self.node.create_subscription(WrenchStamped, topics.WRENCH, on_wrench, CONTROL_QOS)
+        pose_pub = self.node.create_publisher(
+            PoseStamped, f"{self.controller}/{topics.TARGET_POSE_SUFFIX}", TARGET_QOS)
+        wrench_pub = self.node.create_publisher(
+            WrenchStamped, f"{self.controller}/{topics.TARGET_WRENCH_SUFFIX}", TARGET_QOS)
+        joints = list(chain_model.joint_names)
+        self._spin_until(lambda: all(j in self.q for j in joints) and self.wrench is not None,
+                         f"joint states of {joints} and wrench")
+        if self.wrench[0] and self.wrench[0] != sensor_frame:
+            raise ValueError(f"the wrench is in frame {self.wrench[0]!r}, not the controller's "
+                             f"sensor_frame {sensor_frame!r}")
+        q = lambda: np.array([self.q[j] for j in joints])      # noqa: E731
+        start = chain_model.tip_pose(q())
+        base = chain_model.base_link
+
+        def send(position, quaternion) -> None:
+            msg = PoseStamped()
+            msg.header.frame_id = base
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = map(float, position)
+            o = msg.pose.orientation
+            o.w, o.x, o.y, o.z = map(float, quaternion)
+            pose_pub.publish(msg)
+            zero = WrenchStamped()
+            zero.header.frame_id = base
+            wrench_pub.publish(zero)
+
+        g_s, wrenches = [], []
+        targets = poses(start)
+        for i, (position, quaternion) in enumerate([*targets, targets[0]]):
+            g_sum, w_sum, count = np.zeros(3), np.zeros(6), 0
+            t0 = time.monotonic()
+            last_sent = -np.inf
+            last_wrench = None
+            while time.monotonic() - t0 < settle + (average if i < len(targets) else 0.0):
+                now = time.monotonic()
+                if now - last_sent >= TARGET_PERIOD_S:
+                    send(position, quaternion)
+                    last_sent = now
+                self.executor.spin_once(timeout_sec=TARGET_PERIOD_S / 2)
+                if now - t0 >= settle and self.wrench[1] is not last_wrench:
+                    last_wrench = self.wrench[1]
+                    g_sum += frame_rotation(chain_model, q(), sensor_frame).T @ gravity
+                    w_sum += last_wrench
+                    count += 1
+            if i < len(targets):
+                if count == 0:
+                    raise TimeoutError(f"no wrench during pose {i + 1}'s {average:g} s average")
+                g_s.append(g_sum / count)
+                wrenches.append(w_sum / count)
+        return np.array(g_s), np.array(wrenches)
