@@ -10,7 +10,8 @@ task-space controller, ``/joint_states`` and the wrist sensor's wrench
    pose at the start to ``<controller>/target_pose`` at 100 Hz (so the controller's
    ``target_timeout`` never sees it stale), waits ``settle`` s, then averages the wrench
    and g_i = R_i^T g over ``average`` s, R_i from each measured state through the URDF
-   (Pinocchio);
+   (Pinocchio); the times are the states' stamps (the robot's clock: wall time on a
+   robot, simulated time in a lockstep session);
 3. goes back to the start pose and returns the averages for the least squares.
 
 The arm must be in free space, the controller asking no contact force (a ``target_wrench``
@@ -44,6 +45,7 @@ class RobotPoses:
         self.controller = controller
         self.timeout_s = timeout_s
         self.q: dict[str, float] = {}
+        self.stamp = float("nan")           # of the latest joint state (s)
         self.wrench: tuple[str, np.ndarray] | None = None
 
     def close(self) -> None:
@@ -83,6 +85,7 @@ class RobotPoses:
 
         def on_state(msg: JointState) -> None:
             self.q.update(zip(msg.name, msg.position, strict=False))
+            self.stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
         def on_wrench(msg: WrenchStamped) -> None:
             f, t = msg.wrench.force, msg.wrench.torque
@@ -119,16 +122,17 @@ class RobotPoses:
         targets = poses(start)
         for i, (position, quaternion) in enumerate([*targets, targets[0]]):
             g_sum, w_sum, count = np.zeros(3), np.zeros(6), 0
-            t0 = time.monotonic()
-            last_sent = -np.inf
-            last_wrench = None
-            while time.monotonic() - t0 < settle + (average if i < len(targets) else 0.0):
+            t0, last_sent, last_wrench = self.stamp, -np.inf, None
+            deadline = time.monotonic() + self.timeout_s + 10.0 * (settle + average)
+            while self.stamp - t0 < settle + (average if i < len(targets) else 0.0):
                 now = time.monotonic()
+                if now > deadline:
+                    raise TimeoutError(f"the joint states stopped during pose {i + 1}")
                 if now - last_sent >= TARGET_PERIOD_S:
                     send(position, quaternion)
                     last_sent = now
                 self.executor.spin_once(timeout_sec=TARGET_PERIOD_S / 2)
-                if now - t0 >= settle and self.wrench[1] is not last_wrench:
+                if self.stamp - t0 >= settle and self.wrench[1] is not last_wrench:
                     last_wrench = self.wrench[1]
                     g_sum += frame_rotation(chain_model, q(), sensor_frame).T @ gravity
                     w_sum += last_wrench
