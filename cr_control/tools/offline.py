@@ -6,6 +6,7 @@ lockstep mode: the command computed from the state at t_k is held over [t_k, t_k
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +32,9 @@ class OfflineRun:
     status: np.ndarray
     reference_fields: list[str]
     status_fields: list[str]
+    #: The plant's true (noise-free) contact force, base frame, where the plant has one
+    #: (``contact_force``: urdf_surface, the thesis arms); NaN otherwise.
+    true_force: np.ndarray | None = None
 
     def column(self, name: str) -> np.ndarray:
         """A named reference or status column (fields of topics.py)."""
@@ -39,8 +43,11 @@ class OfflineRun:
         return self.reference[:, self.reference_fields.index(name) - 1]
 
 
-def run(controller: Controller, plant: Plant, duration: float, period: float = 1e-3) -> OfflineRun:
-    """Step ``plant`` and ``controller`` for ``duration`` s at ``period``."""
+def run(controller: Controller, plant: Plant, duration: float, period: float = 1e-3,
+        before_step: Callable[[int, float, Controller], None] | None = None) -> OfflineRun:
+    """Step ``plant`` and ``controller`` for ``duration`` s at ``period``;
+    ``before_step(k, t, controller)``, if given, runs before cycle k (at the plant's time t):
+    a test's stand-in for a topic's callbacks (targets every 10 ms, ...)."""
     steps = int(round(duration / period))
     n = len(plant.joint_names)
     n_command = len(plant.command_joints)
@@ -70,7 +77,9 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         "force": np.empty((steps, 3)), "command": np.empty((steps, n_command)),
         "reference": np.empty((steps, len(controller.reference_fields) - 1)),
         "status": np.empty((steps, len(controller.status_fields) - 1)),
+        "true_force": np.full((steps, 3), np.nan),
     }
+    true_force = getattr(plant, "contact_force", None)
     for k in range(steps):
         m = plant.measurement()
         if sensor_index is not None:
@@ -79,6 +88,11 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         # the stamp as the controller node sees it (integer nanoseconds in the header):
         # lockstep over ROS then reproduces this loop bit for bit, even where the closed
         # loop amplifies round-off (fjr_robust_adaptive's boundary layer at 1 kHz)
+        if true_force is not None:
+            f_true = true_force()
+            rows["true_force"][k, :f_true.shape[0]] = f_true
+        if before_step is not None:
+            before_step(k, m.time, controller)
         sec, nanosec = divmod(round(m.time * 1e9), 1_000_000_000)
         q, v = (m.position, m.velocity) if read is None else (m.position[read], m.velocity[read])
         out = controller.step(sec + nanosec * 1e-9, q, v, m.force)
@@ -105,7 +119,8 @@ def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None)
 
 def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
                plant_overrides: dict[str, Any] | None = None, period: float = 1e-3,
-               robot: str | None = None) -> OfflineRun:
+               robot: str | None = None,
+               before_step: Callable[[int, float, Controller], None] | None = None) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
     on ``robot``'s wiping task (the parameters of config/robots/<robot>/, see
     :mod:`cr_control.tools.robots`)."""
@@ -119,4 +134,4 @@ def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any
                                                                 **(plant_overrides or {})})
         controller = make_controller(scheme, {**robots.controller_values(r, scheme),
                                               **(controller_overrides or {})})
-    return run(controller, plant, duration, period)
+    return run(controller, plant, duration, period, before_step)

@@ -68,6 +68,12 @@ ROBUST_MODEL = {"model_mass_scale": 0.9, "model_inertia_scale": 0.9, "delta_G": 
 #: unstable (measured: the Panda pressed 1700 N within 1 s, and 1/10 of them still diverges);
 #: these keep it stable on both arms (90 and 67 commands clipped in the first second).
 NN_GAINS = {"Gamma_M": 0.01, "Gamma_C": 0.01, "Gamma_G": 1.0}
+#: The guarded approach on a robot (cr_control.schemes.blocks.contact_guard): down towards the
+#: table at 5 cm/s until 2 N, at most 10 cm. A tool touching the table at the start (the
+#: default wiping task) reaches 2 N within 0.1 s; started 5 cm above it (the plant's
+#: start_clearance) it touches after ~1.1 s with an impact peak below the 10 N target
+#: (test/test_contact_guard.py).
+APPROACH = {"approach_speed": 0.05, "contact_threshold": 2.0, "approach_distance": 0.1}
 #: The task-space schemes (chapters 3 and 5) that run on a robot.
 TASK_SPACE_SCHEMES = ("adaptive_impedance", "robust_adaptive_impedance", "nn_adaptive_impedance",
                       "impedance", "fuzzy_unidirectional")
@@ -109,7 +115,7 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
               "reference_offset": [a, 0.0, 0.0], "reference_amplitude": [a, a, 0.0],
               "reference_phase": [0.0, -math.pi / 2, 0.0],
               "reference_frequency": WIPE_FREQUENCY, "posture": list(r.home),
-              "force_ramp_time": FORCE_RAMP_TIME}
+              "force_ramp_time": FORCE_RAMP_TIME, **APPROACH}
     if scheme in ("impedance", "fuzzy_unidirectional"):
         values.update(f_dm=WIPE_FORCE, surface="plane", surface_normal=[0.0, 0.0, 1.0],
                       surface_centre=[float(x) for x in home_tip(r)])

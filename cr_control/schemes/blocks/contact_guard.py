@@ -105,8 +105,10 @@ def guard_parameters(m: int) -> list[Param]:
               "positive", bound=Bound.FORCE),
         Param("stability_stiffness_scale", 0.2, "Monitor: the law's stiffness is scaled down "
               "to this on chatter (0.01-1).", "positive", bound=1.0),
-        Param("stability_damping_scale", 3.0, "Monitor: the law's damping is scaled up to this "
-              "on chatter (1-10).", "positive", bound=10.0),
+        Param("stability_damping_scale", 6.0, "Monitor: the law's damping is scaled up to this "
+              "on chatter (1-10; a one-cycle-late force measurement on a stiff contact acts as "
+              "a negative damping of about K_e dt / 2, which this must outweigh).", "positive",
+              bound=10.0),
         Param("stability_restore_time", 5.0, "Monitor: once calm for 0.5 s, the stiffness and "
               "damping return to nominal over this time (s).", "positive", bound=600.0),
     ]
