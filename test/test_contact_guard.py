@@ -90,42 +90,40 @@ def test_approach_off_leaves_the_start_in_contact():
     assert np.all(r.column("approach_phase") == contact_guard.OFF)
 
 
-# -- target timeouts -------------------------------------------------------------------------------
+# -- target timeouts: a publisher at 100 Hz (set_target_* every 10 ms) that stops -------------------
 STREAM_UNTIL = 1.5
 
 
-def _streaming(pose=None, wrench=None):
-    """A publisher at 100 Hz until STREAM_UNTIL, then silent: set_target_* every 10 ms."""
-    def before_step(k, t, controller):
-        if k % 10 == 0 and t < STREAM_UNTIL:
-            if pose is not None:
-                controller.set_target_pose(*pose(t))
-            if wrench is not None:
-                controller.set_target_wrench(wrench)
-    return before_step
-
-
 def test_stale_pose_target_holds_the_current_pose():
-    """A target pose moving at 2 cm/s along x, streamed at 100 Hz, stops: 0.5 s later (cycle
-    time) the reference is held where it is (no jump), logged in the status; the arm stops."""
+    """A target pose moving at 2 cm/s along x, streamed at 100 Hz, stops at 1.5 s: 0.5 s
+    later (cycle time) the reference is held where it is (no jump), logged in the status;
+    streaming again from 4 s resumes through the target filter, again without a jump."""
     start = np.array(robots.home_tip(robots.robot("ur5")))
     down = np.array([0.0, 1.0, 0.0, 0.0])    # tool0 pointing down: the home orientation
 
-    def pose(t):
-        return start + np.array([0.02 * t, 0.0, 0.0]), down
+    def before_step(k, t, controller):
+        if k % 10 == 0 and (t < STREAM_UNTIL or t >= 4.0):
+            controller.set_target_pose(start + np.array([0.02 * t, 0.0, 0.0]), down)
 
-    r = run_scheme("impedance", 3.0, {"approach_speed": 0.0, "reference_amplitude": [0.0] * 3,
+    r = run_scheme("impedance", 5.0, {"approach_speed": 0.0, "reference_amplitude": [0.0] * 3,
                                       "reference_offset": [0.0] * 3},
-                   robot="ur5", before_step=_streaming(pose=pose))
+                   robot="ur5", before_step=before_step)
     t, stale = r.time, r.column("target_stale")
     assert np.all(stale[t < STREAM_UNTIL + 0.5 - 0.011] == 0.0)
     went = t[np.nonzero(stale)[0][0]]
     assert STREAM_UNTIL + 0.49 < went < STREAM_UNTIL + 0.52
+    assert np.all(stale[(t > went) & (t < 4.0)] == contact_guard.POSE_STALE)
+    assert np.all(stale[t > 4.01] == 0.0)
     r_d = r.column("r_d_x")
-    assert np.abs(np.diff(r_d)).max() < 1e-4                  # no jump anywhere
-    late = t >= 2.8
-    assert np.ptp(r_d[late]) < 1e-5                            # held
-    assert abs(r_d[-1] - start[0] - 0.02 * STREAM_UNTIL) < 0.01   # where the stream left it
+    # no jump anywhere: the stream resumes 5 cm ahead of the held point, and the target
+    # filter (w_f = 5 rad/s) asks at most w_f * 5 cm / e = 0.09 m/s and w_f^2 * 5 cm = 1.25 m/s^2
+    assert np.abs(np.diff(r_d)).max() < 1.5e-4
+    assert np.abs(np.diff(r.column("v_d_x"))).max() < 2e-3
+    held = (t >= 3.5) & (t < 4.0)
+    assert np.ptp(r_d[held]) < 1e-5                            # held
+    assert abs(r_d[held][-1] - start[0] - 0.02 * STREAM_UNTIL) < 0.01   # where the stream left it
+    assert np.ptp(r.column("r_x")[held]) < 1e-4                # and the arm with it
+    assert r_d[-1] > r_d[held][-1] + 0.02                      # following the target again
 
 
 def test_stale_wrench_target_decays_to_zero_and_a_fresh_one_ramps_back():

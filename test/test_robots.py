@@ -92,6 +92,9 @@ def test_wiping_holds_the_force_on_the_path(wiping):
     assert m["posture_max"] < POSTURE_MAX_RAD                   # no drift in the null space
     assert m["limit_margin"] > 0.5                              # no joint limit approached
     assert m["held"] == 0.0 and np.isfinite(run.command).all()
+    # the guarded approach finds the table it starts on; the stability monitor stays calm
+    assert run.column("approach_phase")[-1] == 2.0
+    assert run.column("stiffness_scale").min() == 1.0
 
 
 def test_panda_is_redundant_and_the_ur5_is_not():

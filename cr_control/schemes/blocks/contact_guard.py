@@ -36,7 +36,10 @@ averaged over a sliding exponential window of MONITOR_WINDOW_S (0.1 s):
 
     E <- E + (dt / T_win) (y^2 - E),   rms = sqrt(E)
 
-Chatter is rms > ``stability_threshold`` (N). Then the stiffness scale k falls towards
+Chatter is rms > ``stability_threshold`` (N) while the filtered force also changes sign at
+least MONITOR_MIN_CROSSINGS times per second (an exponential average over
+MONITOR_CROSSING_WINDOW_S): a sustained oscillation of 5 Hz or faster, not the ring-out of
+a step (a contact made at once, a push-off: one or two sign changes). Then the stiffness scale k falls towards
 ``stability_stiffness_scale`` k_min within MONITOR_DROP_S and the damping scale is
 d = 1 + (d_max - 1)(1 - k)/(1 - k_min) (d_max = ``stability_damping_scale``); once rms has
 stayed below half the threshold for MONITOR_CALM_S, k rises back to 1 over
@@ -65,6 +68,12 @@ MONITOR_HIGHPASS_HZ = 5.0
 MONITOR_WINDOW_S = 0.1
 MONITOR_DROP_S = 0.05
 MONITOR_CALM_S = 0.5
+#: Monitor: sign changes of the high-passed force per second (averaged over
+#: MONITOR_CROSSING_WINDOW_S) needed besides the RMS: an oscillation of 5 Hz or faster. A step
+#: (a contact made at once, a push-off) rings out with one or two sign changes: at most
+#: 8 per s over 0.25 s.
+MONITOR_CROSSING_WINDOW_S = 0.25
+MONITOR_MIN_CROSSINGS = 10.0
 
 #: approach_phase values in the status.
 OFF, APPROACHING, IN_CONTACT, NO_CONTACT = 0.0, 1.0, 2.0, 3.0
@@ -129,7 +138,7 @@ def guard_state(m: int) -> Layout:
     return Layout(phase=1, t_contact=1, s=1, s_dot=1, u=m, pose_t=1, wrench_t=1, stale=1,
                   wrench_scale=1, events=1, hold_position=m, hold_quaternion=4, x_prev=1,
                   y1=1, y2=1, energy=1, k=1, d=1, calm=1, active=1, detections=1, primed=1,
-                  wrench_seq=1)
+                  wrench_seq=1, crossings=1)
 
 
 #: Status fields the guard adds to every task-space scheme.
@@ -140,7 +149,7 @@ GUARD_STATUS_FIELDS = ["approach_phase", "target_stale", "oscillation_rms", "sti
 @njit(cache=True, error_model="numpy")
 def guard_sizes(m):
     """(gains, state) sizes of :func:`guard_gains` and :func:`guard_state` for m axes."""
-    return m + 10, 2 * m + 24
+    return m + 10, 2 * m + 25
 
 
 # offsets in the guard gains (after approach_direction: + m)
@@ -307,6 +316,9 @@ def monitor(g, s, force, f_d, dt):
     y1_old = s[o + 1]
     y1 = a * (y1_old + x - s[o])
     y2 = a * (s[o + 2] + y1 - y1_old)
+    crossed = 1.0 if y2 * s[o + 2] < 0.0 else 0.0
+    rate = s[o + 11] + (crossed - dt * s[o + 11]) / MONITOR_CROSSING_WINDOW_S
+    s[o + 11] = rate
     s[o], s[o + 1], s[o + 2] = x, y1, y2
     energy = s[o + 3] + dt / MONITOR_WINDOW_S * (y2 * y2 - s[o + 3])
     s[o + 3] = energy
@@ -314,7 +326,7 @@ def monitor(g, s, force, f_d, dt):
     k_min, d_max = g[_G_DIRECTION + m + 4], g[_G_DIRECTION + m + 5]
     k = s[o + 4]
     rms = math.sqrt(energy)
-    if rms > threshold:
+    if rms > threshold and rate >= MONITOR_MIN_CROSSINGS:
         s[o + 6] = 0.0                               # calm time
         if s[o + 7] == 0.0:
             s[o + 7] = 1.0
