@@ -110,7 +110,8 @@ def guard_parameters(m: int) -> list[Param]:
               "of the contact force (stability_threshold) the law's stiffness is lowered and "
               "its damping raised, restored slowly once calm.", "bool"),
         Param("stability_threshold", 2.0, "Monitor: RMS (N) of the contact force above 5 Hz "
-              "over a 0.1 s window that counts as chatter (the wiping tasks stay below 0.2 N).",
+              "over a 0.1 s window that counts as chatter, while it changes sign >= 10 times "
+              "per s (the wiping tasks stay below 1 N).",
               "positive", bound=Bound.FORCE),
         Param("stability_stiffness_scale", 0.2, "Monitor: the law's stiffness is scaled down "
               "to this on chatter (0.01-1).", "positive", bound=1.0),
