@@ -214,6 +214,13 @@ def test_lockstep_session_approaches_like_the_offline_loop(tmp_path):
                          plant_overrides={"start_clearance": CLEARANCE})
     rows = np.rint(s.status["stamp"] * 1e3).astype(int)
     assert len(rows) > 0.9 * duration * 1000
-    for field in ("approach_phase", "f_z", "r_z", "tau_2", "stiffness_scale"):
+    for field in ("approach_phase", "stiffness_scale"):       # contact at the same cycle
         assert np.abs(s.status[field] - offline.column(field)[rows]).max() < 1e-6, field
+    before = s.status["approach_phase"] == contact_guard.APPROACHING
+    for field in ("r_z", "tau_2"):                           # bit for bit until contact
+        assert np.abs(s.status[field][before] - offline.column(field)[rows][before]).max() < 1e-6
+    # from the impact on, the plant node's torque-rate limit (1000 N m/s; the offline loop
+    # has none) shapes the braking: measured 0.61 N apart at most, 0.003 N at the end
+    diff = np.abs(s.status["f_z"] - offline.column("f_z")[rows])
+    assert diff.max() < 1.0 and diff[-100:].max() < 0.02
     assert s.status["approach_phase"][-1] == contact_guard.IN_CONTACT

@@ -15,9 +15,10 @@ expects; the chapter 5 laws: against their plane's normal):
 is the force on the tool against u above ``contact_threshold``: -u^T f > f_c. From then the
 scheme runs as if it had started at that instant at that point: its path is relative to the
 contact point (a relative reference) and the desired force is ramped in over
-``force_ramp_time``. If no contact comes within D the reference holds r_0 + D u (it never
-pushes into the void), logged once and reported in the status (``approach_phase`` 3);
-contact found later still engages the law.
+``force_ramp_time`` from f_c (not from zero, which would let the impedance laws of chapter 5
+push off the contact just made: :func:`contact_ramp`). If no contact comes within D the
+reference holds r_0 + D u (it never pushes into the void), logged once and reported in the
+status (``approach_phase`` 3); contact found later still engages the law.
 
 Target timeouts (``target_timeout`` T_o > 0). A target is stale once the control cycle's
 own time (the state stamps, so lockstep and the offline loop are deterministic) is more
@@ -36,7 +37,9 @@ averaged over a sliding exponential window of MONITOR_WINDOW_S (0.1 s):
 
     E <- E + (dt / T_win) (y^2 - E),   rms = sqrt(E)
 
-Chatter is rms > ``stability_threshold`` (N) while the filtered force also changes sign at
+Chatter, once the desired force is fully ramped in (the ramp-in and the approach are
+transients by design; the NN law learns the arm's weight then), is rms >
+``stability_threshold`` (N) while the filtered force also changes sign at
 least MONITOR_MIN_CROSSINGS times per second (an exponential average over
 MONITOR_CROSSING_WINDOW_S): a sustained oscillation of 5 Hz or faster, not the ring-out of
 a step (a contact made at once, a push-off: one or two sign changes). Then the stiffness scale k falls towards
@@ -295,9 +298,11 @@ def trajectory_time(s, t):
 
 
 @njit(cache=True, error_model="numpy")
-def monitor(g, s, force, f_d, dt):
+def monitor(g, s, force, f_d, dt, armed):
     """One cycle of the contact-stability monitor (module docstring) on the measured force
-    (task rows); returns (stiffness scale, damping scale)."""
+    (task rows); returns (stiffness scale, damping scale). It detects only while ``armed``
+    (the desired force fully ramped in: the ramp-in and the approach are transients by
+    design, and the NN law learns the arm's weight then)."""
     m = force.shape[0]
     o = _after_u(m)[7]
     if g[_G_DIRECTION + m + 2] <= 0.0:               # stability_monitor off
@@ -327,7 +332,7 @@ def monitor(g, s, force, f_d, dt):
     k_min, d_max = g[_G_DIRECTION + m + 4], g[_G_DIRECTION + m + 5]
     k = s[o + 4]
     rms = math.sqrt(energy)
-    if rms > threshold and rate >= MONITOR_MIN_CROSSINGS:
+    if rms > threshold and rate >= MONITOR_MIN_CROSSINGS and armed:
         s[o + 6] = 0.0                               # calm time
         if s[o + 7] == 0.0:
             s[o + 7] = 1.0
@@ -344,6 +349,17 @@ def monitor(g, s, force, f_d, dt):
     d = 1.0 + (d_max - 1.0) * (1.0 - k) / (1.0 - k_min) if k_min < 1.0 else 1.0
     s[o + 4], s[o + 5] = k, d
     return k, d
+
+
+@njit(cache=True, error_model="numpy")
+def contact_ramp(g, s, ramp, f_full):
+    """The force ramp after a guarded approach starts at the contact threshold, not at zero:
+    rho + (1 - rho) ramp with rho = min(1, f_c / |f_d|), so the law neither lets go of the
+    contact it has just made nor pushes off from it; ``ramp`` itself otherwise."""
+    if s[_S_PHASE] != IN_CONTACT or not f_full > 0.0:
+        return ramp
+    rho = min(1.0, g[_G_THRESHOLD] / f_full)
+    return rho + (1.0 - rho) * ramp
 
 
 @njit(cache=True, error_model="numpy")

@@ -227,7 +227,7 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
         if touched:                  # the scheme starts now, here: its path from this point
             state[s_r0:s_r0 + m] = r
         else:
-            k_s, d_s = guard.monitor(g_guard, s_guard, force, np.zeros(m), dt)
+            guard.monitor(g_guard, s_guard, force, np.zeros(m), dt, False)
             return (r_a, v_a, a_a, np.zeros(m), state[s_q0:s_q0 + 4].copy(), np.zeros(3),
                     (gains[o_post:o_post + n] if gains[o_post_given] > 0.0
                      else state[s_qs:s_qs + n]).copy(), 0.0)
@@ -278,8 +278,8 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
         guard.fresh_wrench(s_guard, m, targets[_T_WRENCH_SEQ], t)
         f_d = f_target * guard.wrench_factor(g_guard, s_guard, t, dt, m, targets[_T_WRENCH_SEQ])
     ramp = smoothstep(t_path / gains[o_ramp]) if gains[o_ramp] > 0.0 else 1.0
-    f_d *= ramp
-    k_s, d_s = guard.monitor(g_guard, s_guard, force, f_d, dt)
+    f_d *= guard.contact_ramp(g_guard, s_guard, ramp, math.sqrt(np.sum(f_d * f_d)))
+    _, d_s = guard.monitor(g_guard, s_guard, force, f_d, dt, ramp >= 1.0)
     d_a = gains[o_da] * d_s
     f_norm = math.sqrt(np.sum(f_d * f_d))
     if d_a > 0.0 and f_norm > 0.0:

@@ -30,8 +30,10 @@ def unidirectional_front(chain, gains, state, targets, t, dt, q, v, force):
     law = gains[common_blocks(gains)[5]:]
     size = contact.contact_gains_size(m)
     gains_contact = law[:size]
-    n, gap, f_m, f_d, f_dm = contact.contact_state(gains_contact, frame.r, f, f_d_ref,
-                                                   targets[_WRENCH_SEQ] != 0.0, ramp)
+    n, gap, f_m, f_d, f_dm = contact.contact_state(
+        gains_contact, frame.r, f, f_d_ref, targets[_WRENCH_SEQ] != 0.0,
+        guard.contact_ramp(common_blocks(gains)[4][4 * m + 8 + q.shape[0]:],
+                           guard_state_of(state, m, q.shape[0]), ramp, gains_contact[0]))
     return (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, f_dm,
             r_d - frame.r, v_d - frame.r_dot, gains_contact, law[size:])
 
