@@ -77,6 +77,10 @@ APPROACH = {"approach_speed": 0.05, "contact_threshold": 2.0, "approach_distance
 #: The chapter 5 laws are impedances about the reference (k_m = 60 N/m): pressing 2 N needs
 #: the approach's reference 33 mm below the table; 0.5 N (8 mm) finds it within 0.2 s.
 APPROACH_CH5_THRESHOLD = 0.5
+#: The NN scheme's force ramp (s): its learning transient (the tool leaves the table and comes
+#: back, 0.08-1.3 s; its force keeps ringing at ~1 N RMS to 2 s) is over before the contact-stability monitor is armed (it detects once the
+#: force is ramped in); with 1 s and 1.5 s the monitor took its end for chatter.
+NN_FORCE_RAMP_TIME = 2.0
 #: The task-space schemes (chapters 3 and 5) that run on a robot.
 TASK_SPACE_SCHEMES = ("adaptive_impedance", "robust_adaptive_impedance", "nn_adaptive_impedance",
                       "impedance", "fuzzy_unidirectional")
@@ -129,5 +133,5 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
     if scheme == "robust_adaptive_impedance":
         values.update(ROBUST_MODEL)
     if scheme == "nn_adaptive_impedance":
-        values.update(NN_GAINS, rbf_seed=list(r.home))
+        values.update(NN_GAINS, rbf_seed=list(r.home), force_ramp_time=NN_FORCE_RAMP_TIME)
     return values
