@@ -78,8 +78,9 @@ APPROACH = {"approach_speed": 0.05, "contact_threshold": 2.0, "approach_distance
 #: the approach's reference 33 mm below the table; 0.5 N (8 mm) finds it within 0.2 s.
 APPROACH_CH5_THRESHOLD = 0.5
 #: The NN scheme's force ramp (s): its learning transient (the tool leaves the table and comes
-#: back, 0.08-1.3 s; its force keeps ringing at ~1 N RMS to 2 s) is over before the contact-stability monitor is armed (it detects once the
-#: force is ramped in); with 1 s and 1.5 s the monitor took its end for chatter.
+#: back until 1.23 s on the Panda; its force rings at ~1 N RMS until 2 s) is over before the
+#: contact-stability monitor is armed (it detects once the force is ramped in); with 1 s and
+#: 1.5 s the monitor took its end for chatter.
 NN_FORCE_RAMP_TIME = 2.0
 #: The task-space schemes (chapters 3 and 5) that run on a robot.
 TASK_SPACE_SCHEMES = ("adaptive_impedance", "robust_adaptive_impedance", "nn_adaptive_impedance",
