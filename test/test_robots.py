@@ -118,6 +118,11 @@ def test_finger_joints_are_published_and_ignored():
 
 # -- lockstep over ROS -----------------------------------------------------------------------------
 LOCKSTEP_S = 2.0
+#: Lockstep against offline. 1e-6 before issue 24; the guarded approach's contact (the
+#: reference stops at once) asks a torque step at the plant node's rate limit (1 N m per
+#: cycle), so from then the runs differ slightly (measured on the Panda: 1.1e-5 m in e_x,
+#: 0.018 N in f_z, 5.7e-5 N at the end). Per field kind: m, N, N m, rad.
+LOCKSTEP_TOL = {"e": 1e-4, "f": 0.05, "tau": 0.1, "e_rot": 1e-3}
 
 
 @pytest.mark.parametrize("robot,scheme", CASES, ids=[f"{r}-{s}" for r, s in CASES])
@@ -145,6 +150,7 @@ def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
         assert abs(f_z[-1] - robots.WIPE_FORCE) < 1.0
         return
     for field in ("e_x", "e_y", "e_z", "f_z", "tau_1", "tau_4", "e_rot_x"):
-        assert np.abs(s.status[field] - offline.column(field)[rows]).max() < 1e-6, field
+        kind = "e_rot" if field.startswith("e_rot") else field.split("_")[0]
+        assert np.abs(s.status[field] - offline.column(field)[rows]).max() < LOCKSTEP_TOL[kind], field
     cmd_rows = np.rint(s.joint_commands.time * 1e3).astype(int)
-    assert np.abs(s.joint_commands.effort - offline.command[cmd_rows]).max() < 1e-6
+    assert np.abs(s.joint_commands.effort - offline.command[cmd_rows]).max() < LOCKSTEP_TOL["tau"]
