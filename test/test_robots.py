@@ -5,16 +5,16 @@ Measured (offline, 20 s, metrics over the last half; bounds below with their mar
 
 | robot / scheme | path RMS | force mean | force err RMS | orientation max | posture max |
 |---|---|---|---|---|---|
-| panda adaptive_impedance | 5.95 mm | 9.979 N | 0.022 N | 0.62 deg | 0.0058 rad |
-| panda robust_adaptive_impedance | 5.88 mm | 9.977 N | 0.024 N | 2.70 deg | 0.0086 rad |
-| panda nn_adaptive_impedance | 0.094 mm | 10.000 N | 0.0016 N | 1.60 deg | 0.0047 rad |
-| panda impedance | 0.020 mm | 9.881 N | 0.119 N | 0.39 deg | 0.0039 rad |
-| panda fuzzy_unidirectional | 0.016 mm | 9.852 N | 0.148 N | 0.41 deg | 0.0041 rad |
-| ur5 adaptive_impedance | 5.95 mm | 9.979 N | 0.022 N | 0.26 deg | - |
-| ur5 robust_adaptive_impedance | 5.84 mm | 9.977 N | 0.024 N | 0.97 deg | - |
-| ur5 nn_adaptive_impedance | 0.66 mm | 10.000 N | 0.0030 N | 0.97 deg | - |
-| ur5 impedance | 0.011 mm | 9.882 N | 0.119 N | 0.17 deg | - |
-| ur5 fuzzy_unidirectional | 0.009 mm | 9.852 N | 0.148 N | 0.17 deg | - |
+| panda adaptive_impedance | 5.91 mm | 9.979 N | 0.022 N | 0.63 deg | 0.0056 rad |
+| panda robust_adaptive_impedance | 5.87 mm | 9.977 N | 0.024 N | 2.72 deg | 0.0087 rad |
+| panda nn_adaptive_impedance | 0.095 mm | 10.000 N | 0.0016 N | 1.70 deg | 0.0051 rad |
+| panda impedance | 0.020 mm | 9.886 N | 0.114 N | 0.39 deg | 0.0039 rad |
+| panda fuzzy_unidirectional | 0.016 mm | 9.858 N | 0.142 N | 0.41 deg | 0.0041 rad |
+| ur5 adaptive_impedance | 5.92 mm | 9.979 N | 0.022 N | 0.26 deg | – |
+| ur5 robust_adaptive_impedance | 5.82 mm | 9.977 N | 0.024 N | 0.97 deg | – |
+| ur5 nn_adaptive_impedance | 0.66 mm | 10.000 N | 0.0030 N | 0.91 deg | – |
+| ur5 impedance | 0.011 mm | 9.886 N | 0.114 N | 0.17 deg | – |
+| ur5 fuzzy_unidirectional | 0.009 mm | 9.858 N | 0.142 N | 0.17 deg | – |
 
 The chapter 3 laws converge slowly on the path (the thesis's own 12.6 mm at 10 s on its
 arm) and hold the force through the force admittance on the reference; the chapter 5 laws
