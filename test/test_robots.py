@@ -120,9 +120,10 @@ def test_finger_joints_are_published_and_ignored():
 LOCKSTEP_S = 2.0
 #: Lockstep against offline. 1e-6 before issue 24; the guarded approach's contact (the
 #: reference stops at once) asks a torque step at the plant node's rate limit (1 N m per
-#: cycle), so from then the runs differ slightly (measured on the Panda: 1.1e-5 m in e_x,
-#: 0.018 N in f_z, 5.7e-5 N at the end). Per field kind: m, N, N m, rad.
-LOCKSTEP_TOL = {"e": 1e-4, "f": 0.05, "tau": 0.1, "e_rot": 1e-3}
+#: cycle: r_d' goes from the approach speed to the path's at once), so from then the runs
+#: differ slightly (measured: 1.1e-5 m in e_x and 0.018 N in f_z on the Panda; torques up to
+#: 0.96 N m apart for a few cycles, ur5 robust_adaptive_impedance). Per field kind: m, N, N m, rad.
+LOCKSTEP_TOL = {"e": 1e-4, "f": 0.05, "tau": 1.5, "e_rot": 1e-3}
 
 
 @pytest.mark.parametrize("robot,scheme", CASES, ids=[f"{r}-{s}" for r, s in CASES])
