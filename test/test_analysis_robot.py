@@ -3,7 +3,7 @@ impedance scheme, recorded in lockstep over ROS for 1.5 s; its metrics against t
 quantities computed directly from the offline loop's columns (lockstep reproduces it bit
 for bit), its figures, and cr_analyze on it, alone and beside a thesis session. The robot
 scenario's sensor is a wrist sensor (issue 24): the normal-force metrics judge the plant's
-true contact force (/plant/contact_wrench, the offline loop's ``contact_force``), the 2-D
+true contact force (/plant/contact_wrench, the offline loop's ``true_force``), the 2-D
 force metrics what the law was given (the compensated force of the status). The sensor runs
 without noise here: with it the laws' torque steps exceed the plant node's torque-rate
 limit, which the offline loop does not have (test_robots.py)."""
@@ -52,7 +52,7 @@ def expected_metrics(rows: np.ndarray) -> dict[str, float]:
     t = run.time[rows]
     last = t >= t[0] + 0.5 * (t[-1] - t[0])
     rms = lambda x: math.sqrt(np.mean(np.square(x)))  # noqa: E731
-    f_z = run.contact_force[rows, 2]          # the true contact force
+    f_z = run.true_force[rows, 2]          # the true contact force
     f_law = col("f_z")                          # the compensated sensor force
     path = np.hypot(col("e_x"), col("e_y"))
     e = np.sqrt(col("e_x") ** 2 + col("e_y") ** 2 + col("e_z") ** 2)

@@ -5,25 +5,27 @@ Measured (offline, 20 s, metrics over the last half; bounds below with their mar
 
 | robot / scheme | path RMS | force mean | force err RMS | orientation max | posture max |
 |---|---|---|---|---|---|
-| panda adaptive_impedance | 5.95 mm | 9.979 N | 0.022 N | 0.62 deg | 0.0058 rad |
-| panda robust_adaptive_impedance | 5.88 mm | 9.977 N | 0.024 N | 2.70 deg | 0.0086 rad |
-| panda nn_adaptive_impedance | 0.094 mm | 10.000 N | 0.0016 N | 1.60 deg | 0.0047 rad |
-| panda impedance | 0.020 mm | 9.881 N | 0.119 N | 0.39 deg | 0.0039 rad |
-| panda fuzzy_unidirectional | 0.016 mm | 9.852 N | 0.148 N | 0.41 deg | 0.0041 rad |
-| ur5 adaptive_impedance | 5.95 mm | 9.979 N | 0.022 N | 0.26 deg | - |
-| ur5 robust_adaptive_impedance | 5.84 mm | 9.977 N | 0.024 N | 0.97 deg | - |
-| ur5 nn_adaptive_impedance | 0.66 mm | 10.000 N | 0.0030 N | 0.97 deg | - |
-| ur5 impedance | 0.011 mm | 9.882 N | 0.119 N | 0.17 deg | - |
-| ur5 fuzzy_unidirectional | 0.009 mm | 9.852 N | 0.148 N | 0.17 deg | - |
+| panda adaptive_impedance | 5.91 mm | 9.979 N | 0.022 N | 0.63 deg | 0.0056 rad |
+| panda robust_adaptive_impedance | 5.87 mm | 9.977 N | 0.024 N | 2.72 deg | 0.0087 rad |
+| panda nn_adaptive_impedance | 0.095 mm | 10.000 N | 0.0016 N | 1.70 deg | 0.0051 rad |
+| panda impedance | 0.020 mm | 9.886 N | 0.114 N | 0.39 deg | 0.0039 rad |
+| panda fuzzy_unidirectional | 0.016 mm | 9.858 N | 0.142 N | 0.41 deg | 0.0041 rad |
+| ur5 adaptive_impedance | 5.92 mm | 9.979 N | 0.022 N | 0.26 deg | – |
+| ur5 robust_adaptive_impedance | 5.82 mm | 9.977 N | 0.024 N | 0.97 deg | – |
+| ur5 nn_adaptive_impedance | 0.66 mm | 10.000 N | 0.0030 N | 0.91 deg | – |
+| ur5 impedance | 0.011 mm | 9.886 N | 0.114 N | 0.17 deg | – |
+| ur5 fuzzy_unidirectional | 0.009 mm | 9.858 N | 0.142 N | 0.17 deg | – |
 
 The chapter 3 laws converge slowly on the path (the thesis's own 12.6 mm at 10 s on its
 arm) and hold the force through the force admittance on the reference; the chapter 5 laws
 track the path closely and keep f = f_dm K_e/(K_e + k_m) = 9.88 N (impedance; fuzzy: d_m
 tuned) by design; the NN law (with the robots' gentler adaptation gains,
 cr_control.tools.robots.NN_GAINS), after its learning transient, tracks both closely. The
-NN leaves the table while it learns the arm's weight (0.08-0.88 s on the Panda, 0.08-0.81 s
-on the UR5), as its thesis run starts with a torque peak: contact is checked from 1 s on
-for it, from 0.05 s on (the desired force is ramped in from 0 N over 1 s) for the others.
+NN leaves the table while it learns the arm's weight (until 1.23 s on the Panda, 1.09 s on
+the UR5, with its 2 s force ramp: robots.NN_FORCE_RAMP_TIME), as its thesis run starts with
+a torque peak: contact is checked from 1.5 s on for it, from 0.05 s on (the desired force is
+ramped in from 0 N over 1 s, after the guarded approach has found the table) for the others.
+The contact-stability monitor never acts in these runs.
 No run comes within 0.66 rad of a joint limit.
 
 Issue 24: the robots' sensor is a realistic wrist sensor (0.7 kg tool, a bias of a few
@@ -80,7 +82,7 @@ LAW_START_S = ZERO_START_WINDOW_S + 1e-3
 #: The chapter 5 laws: from 0.1 s (f_d 0.28 N): before, their desired force is below the
 #: sensor's 0.2 N noise and the tool just touches (f = 0, "lost", until 62 ms after the law
 #: starts on the Panda); the ideal sensor's start transient pressed 1 N by accident.
-CONTACT_FROM_S = {"nn_adaptive_impedance": 1.0, **dict.fromkeys(CH5, 0.1)}
+CONTACT_FROM_S = {"nn_adaptive_impedance": 1.5, **dict.fromkeys(CH5, 0.1)}
 #: The lockstep comparison's sensor: without noise (module docstring).
 NOISE_FREE = {"ft_noise_std": [0.0, 0.0]}
 
@@ -128,6 +130,9 @@ def test_wiping_holds_the_force_on_the_path(wiping):
     assert m["posture_max"] < POSTURE_MAX_RAD                   # no drift in the null space
     assert m["limit_margin"] > 0.5                              # no joint limit approached
     assert m["held"] == 0.0 and np.isfinite(run.command).all()
+    # the guarded approach finds the table it starts on; the stability monitor stays calm
+    assert run.column("approach_phase")[-1] == 2.0
+    assert run.column("stiffness_scale").min() == 1.0
 
 
 def test_panda_is_redundant_and_the_ur5_is_not():
@@ -149,6 +154,12 @@ def test_finger_joints_are_published_and_ignored():
 
 # -- lockstep over ROS -----------------------------------------------------------------------------
 LOCKSTEP_S = 2.0
+#: Lockstep against offline. 1e-6 before issue 24; the guarded approach's contact (the
+#: reference stops at once) asks a torque step at the plant node's rate limit (1 N m per
+#: cycle: r_d' goes from the approach speed to the path's at once), so from then the runs
+#: differ slightly (measured: 1.1e-5 m in e_x and 0.018 N in f_z on the Panda; torques up to
+#: 0.96 N m apart for a few cycles, ur5 robust_adaptive_impedance). Per field kind: m, N, N m, rad.
+LOCKSTEP_TOL = {"e": 1e-4, "f": 0.05, "tau": 1.5, "e_rot": 1e-3}
 
 
 @pytest.mark.parametrize("robot,scheme", CASES, ids=[f"{r}-{s}" for r, s in CASES])
@@ -178,6 +189,7 @@ def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
         assert abs(f_z[-1] - robots.WIPE_FORCE) < 1.0
         return
     for field in ("e_x", "e_y", "e_z", "f_z", "tau_1", "tau_4", "e_rot_x"):
-        assert np.abs(s.status[field] - offline.column(field)[rows]).max() < 1e-6, field
+        kind = "e_rot" if field.startswith("e_rot") else field.split("_")[0]
+        assert np.abs(s.status[field] - offline.column(field)[rows]).max() < LOCKSTEP_TOL[kind], field
     cmd_rows = np.rint(s.joint_commands.time * 1e3).astype(int)
-    assert np.abs(s.joint_commands.effort - offline.command[cmd_rows]).max() < 1e-6
+    assert np.abs(s.joint_commands.effort - offline.command[cmd_rows]).max() < LOCKSTEP_TOL["tau"]

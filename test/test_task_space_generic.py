@@ -134,8 +134,10 @@ def test_singularities_cap_the_apparent_mass():
 # -- targets and the force admittance ---------------------------------------------------------------
 def test_target_pose_is_followed_without_a_jump():
     """A target pose switches the thesis path to a critically damped approach: r_d and r_d'
-    continue from the path at the switch, and r_d reaches the target."""
-    plant, ctrl = make_plant("compliant_plane"), make_controller("adaptive_impedance")
+    continue from the path at the switch, and r_d reaches the target (sent once: no
+    target_timeout, test/test_contact_guard.py has the timeouts)."""
+    plant = make_plant("compliant_plane")
+    ctrl = make_controller("adaptive_impedance", {"target_timeout": 0.0})
     refs = []
     for k in range(3000):
         if k == 1000:
@@ -170,7 +172,7 @@ def test_force_admittance_holds_the_desired_force_whatever_the_stiffness():
 
 
 def test_force_ramp_starts_from_zero():
-    r = run_scheme("impedance", 1.2, robot="panda")
+    r = run_scheme("impedance", 1.2, {"approach_speed": 0.0}, robot="panda")
     f_d = r.column("f_d_z")
     assert f_d[0] == 0.0 and f_d[-1] == pytest.approx(robots.WIPE_FORCE)
     assert np.all(np.diff(f_d) >= -1e-12)

@@ -5,7 +5,7 @@ lockstep mode: the command computed from the state at t_k is held over [t_k, t_k
 
 A controller that reads the whole wrench (``reads_wrench``: a wrist sensor to compensate)
 is given force and torque, as the node gives it a WrenchStamped's; the plant's true contact
-force (``/plant/contact_wrench`` over ROS) is kept in ``contact_force`` where the plant has
+force (``/plant/contact_wrench`` over ROS) is kept in ``true_force`` where the plant has
 one. ``hook(k, t, controller, plant)``, called before each cycle, stands in for what a ROS
 session does between cycles (a ``~/zero_ft`` call, a ``~/target_pose``).
 """
@@ -38,8 +38,9 @@ class OfflineRun:
     status: np.ndarray
     reference_fields: list[str]
     status_fields: list[str]
-    #: The true contact force (base frame, N) per cycle; None for a plant without one.
-    contact_force: np.ndarray | None = None
+    #: The plant's true (noise-free) contact force, base frame, where the plant has one
+    #: (``contact_force``: urdf_surface, the thesis arms); NaN otherwise.
+    true_force: np.ndarray | None = None
 
     def column(self, name: str) -> np.ndarray:
         """A named reference or status column (fields of topics.py)."""
@@ -80,9 +81,9 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         "force": np.empty((steps, 3)), "command": np.empty((steps, n_command)),
         "reference": np.empty((steps, len(controller.reference_fields) - 1)),
         "status": np.empty((steps, len(controller.status_fields) - 1)),
+        "true_force": np.full((steps, 3), np.nan),
     }
-    truth = getattr(plant, "contact_wrench", None)
-    contact = np.empty((steps, 3)) if truth is not None else None
+    true_force = getattr(plant, "contact_force", None)
     for k in range(steps):
         if hook is not None:
             hook(k, k * period, controller, plant)
@@ -93,13 +94,14 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         # the stamp as the controller node sees it (integer nanoseconds in the header):
         # lockstep over ROS then reproduces this loop bit for bit, even where the closed
         # loop amplifies round-off (fjr_robust_adaptive's boundary layer at 1 kHz)
+        if true_force is not None:
+            f_true = true_force()
+            rows["true_force"][k, :f_true.shape[0]] = f_true
         sec, nanosec = divmod(round(m.time * 1e9), 1_000_000_000)
         q, v = (m.position, m.velocity) if read is None else (m.position[read], m.velocity[read])
         force = (np.concatenate([m.force, m.torque]) if getattr(controller, "reads_wrench", False)
                  else m.force)
         out = controller.step(sec + nanosec * 1e-9, q, v, force)
-        if contact is not None:
-            contact[k] = truth().force
         plant.step(out.command if to_plant is None else out.command[to_plant], period)
         rows["time"][k] = m.time
         rows["position"][k] = m.position
@@ -109,7 +111,7 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         rows["reference"][k] = out.reference
         rows["status"][k] = out.status
     return OfflineRun(**rows, reference_fields=list(controller.reference_fields),
-                      status_fields=list(controller.status_fields), contact_force=contact)
+                      status_fields=list(controller.status_fields))
 
 
 def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:

@@ -86,6 +86,20 @@ NN_GAINS = {"Gamma_M": 0.01, "Gamma_C": 0.01, "Gamma_G": 1.0}
 SENSOR = {"tool_mass": 0.7, "tool_com": [0.0, 0.0, 0.06],
           "tool_inertia": [1.0e-3, 0.0, 0.0, 1.0e-3, 0.0, 3.2e-4],
           "ft_bias": [2.0, -1.5, 3.0, 0.1, -0.05, 0.02], "ft_noise_std": [0.2, 0.01]}
+#: The guarded approach on a robot (cr_control.schemes.blocks.contact_guard): down towards the
+#: table at 5 cm/s until 2 N, at most 10 cm. A tool touching the table at the start (the
+#: default wiping task) reaches 2 N within 0.1 s; started 5 cm above it (the plant's
+#: start_clearance) it touches after ~1.1 s with an impact peak below the 10 N target
+#: (test/test_contact_guard.py).
+APPROACH = {"approach_speed": 0.05, "contact_threshold": 2.0, "approach_distance": 0.1}
+#: The chapter 5 laws are impedances about the reference (k_m = 60 N/m): pressing 2 N needs
+#: the approach's reference 33 mm below the table; 0.5 N (8 mm) finds it within 0.2 s.
+APPROACH_CH5_THRESHOLD = 0.5
+#: The NN scheme's force ramp (s): its learning transient (the tool leaves the table and comes
+#: back until 1.23 s on the Panda; its force rings at ~1 N RMS until 2 s) is over before the
+#: contact-stability monitor is armed (it detects once the force is ramped in); with 1 s and
+#: 1.5 s the monitor took its end for chatter.
+NN_FORCE_RAMP_TIME = 2.0
 #: The task-space schemes (chapters 3 and 5) that run on a robot.
 TASK_SPACE_SCHEMES = ("adaptive_impedance", "robust_adaptive_impedance", "nn_adaptive_impedance",
                       "impedance", "fuzzy_unidirectional")
@@ -129,15 +143,16 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
               "reference_frequency": WIPE_FREQUENCY, "posture": list(r.home),
               "force_ramp_time": FORCE_RAMP_TIME, "sensor_frame": r.flange,
               "tool_mass": SENSOR["tool_mass"], "tool_com": SENSOR["tool_com"],
-              "zero_ft_at_start": True}
+              "zero_ft_at_start": True, **APPROACH}
     if scheme in ("impedance", "fuzzy_unidirectional"):
         values.update(f_dm=WIPE_FORCE, surface="plane", surface_normal=[0.0, 0.0, 1.0],
-                      surface_centre=[float(x) for x in home_tip(r)])
+                      surface_centre=[float(x) for x in home_tip(r)],
+                      contact_threshold=APPROACH_CH5_THRESHOLD)
     else:       # chapter 3 laws regulate position: the force admittance holds the force
         values.update(desired_force=[0.0, 0.0, WIPE_FORCE], force_admittance_damping=50.0,
                       force_admittance_mass=1.0)
     if scheme == "robust_adaptive_impedance":
         values.update(ROBUST_MODEL)
     if scheme == "nn_adaptive_impedance":
-        values.update(NN_GAINS, rbf_seed=list(r.home))
+        values.update(NN_GAINS, rbf_seed=list(r.home), force_ramp_time=NN_FORCE_RAMP_TIME)
     return values

@@ -52,6 +52,7 @@ from cr_control.core.so3 import (
     quaternion_multiply,
     rotation_vector,
 )
+from cr_control.schemes.blocks import contact_guard as guard
 
 
 def reference_parameters(m: int, offset: list[float], amplitude: list[float],
@@ -86,6 +87,7 @@ def reference_parameters(m: int, offset: list[float], amplitude: list[float],
               "d_a (N s/m); 0 = off (the thesis's laws as printed).", "nonnegative", bound=Bound.GAIN),
         Param("force_admittance_limit", 0.05, "Force admittance: largest shift |delta| of the "
               "reference along the desired force (m).", "nonnegative", bound=Bound.LENGTH),
+        *guard.guard_parameters(m),
     ]
 
 
@@ -101,19 +103,32 @@ def reference_gains(m: int, n: int) -> Layout:
     return Layout(reference_offset=m, reference_amplitude=m, reference_phase=m,
                   reference_frequency=1, reference_relative=1, desired_force=m,
                   force_ramp_time=1, target_filter_frequency=1, force_admittance_mass=1,
-                  force_admittance_damping=1, force_admittance_limit=1, posture=n, posture_given=1)
+                  force_admittance_damping=1, force_admittance_limit=1, posture=n, posture_given=1,
+                  **guard.guard_gains(m).shapes)
 
 
 def reference_state(m: int, n: int) -> Layout:
     """The desired motion's internal state for m axes and n joints."""
     return Layout(started=1, r_start=m, quat_start=4, q_start=n, pose_seq=1, r_f=m, v_f=m,
-                  quat_f=4, w_f=3, delta=2)
+                  quat_f=4, w_f=3, delta=2, guard=guard.guard_state(m).size)
 
 
 @njit(cache=True, error_model="numpy")
 def reference_state_size(m, n):
     """reference_state(m, n).size, for kernels (the scheme's own state follows it)."""
-    return 3 * m + n + 15
+    return 3 * m + n + 15 + guard.guard_sizes(m)[1]
+
+
+@njit(cache=True, error_model="numpy")
+def reference_gains_size(m, n):
+    """reference_gains(m, n).size, for kernels."""
+    return 4 * m + 8 + n + guard.guard_sizes(m)[0]
+
+
+@njit(cache=True, error_model="numpy")
+def guard_state_of(state, m, n):
+    """The guard's block (:mod:`contact_guard`) of a packed reference state (a view)."""
+    return state[3 * m + n + 15:3 * m + n + 15 + guard.guard_sizes(m)[1]]
 
 
 @njit(cache=True, error_model="numpy")
@@ -177,13 +192,15 @@ def _rows_of(x, rows, m):
 @njit(cache=True, error_model="numpy")
 def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
     """(r_d, r_d', r_d'', f_d, q_d, w_d, posture, ramp) at time t (module docstring); ramp
-    is the force ramp's factor now (1 once ramped in), for laws with a desired force of
-    their own.
+    is the force ramp's factor now (1 once ramped in; 0 during a guarded approach), for laws
+    with a desired force of their own.
 
     ``rows`` are the position rows of the task, ``gains`` / ``state`` the packed
     reference_gains / reference_state blocks, ``targets`` the TARGETS vector; r, R, q are the
     measured tip position (task rows), tip rotation and joint positions, ``force`` the
-    measured force on the task rows (for the admittance)."""
+    measured force on the task rows (for the admittance, the approach and the monitor).
+    The guarded approach, the target timeouts and the contact-stability monitor are
+    :mod:`cr_control.schemes.blocks.contact_guard`'s."""
     m, n = r.shape[0], q.shape[0]
     o_off, o_amp, o_ph = 0, m, 2 * m
     o_w, o_rel, o_fd, o_ramp = 3 * m, 3 * m + 1, 3 * m + 2, 4 * m + 2
@@ -192,43 +209,78 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
     s_r0, s_q0, s_qs = 1, 1 + m, 5 + m
     s_seq, s_rf, s_vf = 5 + m + n, 6 + m + n, 6 + 2 * m + n
     s_qf, s_wf, s_delta = 6 + 3 * m + n, 10 + 3 * m + n, 13 + 3 * m + n
+    g_guard = gains[4 * m + 8 + n:]
+    s_guard = guard_state_of(state, m, n)
     if state[0] == 0.0:
         state[0] = 1.0
         state[s_r0:s_r0 + m] = r
         state[s_q0:s_q0 + 4] = quaternion_from_matrix(R)
         state[s_qs:s_qs + n] = q
         state[s_qf:s_qf + 4] = state[s_q0:s_q0 + 4]
+        guard.guard_start(g_guard, s_guard, m)
+    has_wrench = targets[_T_WRENCH_SEQ] != 0.0
+    f_target = _rows_of(targets[_T_FORCE:_T_FORCE + 3], rows, m)
+    phase = guard.phase_of(s_guard)
+    if phase == guard.APPROACHING or phase == guard.NO_CONTACT:
+        touched, r_a, v_a, a_a = guard.approach(g_guard, s_guard, t, dt, r,
+                                                state[s_r0:s_r0 + m], force, f_target, has_wrench)
+        if touched:                  # the scheme starts now, here: its path from this point
+            state[s_r0:s_r0 + m] = r
+        else:
+            guard.monitor(g_guard, s_guard, force, np.zeros(m), dt, False)
+            return (r_a, v_a, a_a, np.zeros(m), state[s_q0:s_q0 + 4].copy(), np.zeros(3),
+                    (gains[o_post:o_post + n] if gains[o_post_given] > 0.0
+                     else state[s_qs:s_qs + n]).copy(), 0.0)
+    t_path = guard.trajectory_time(s_guard, t)
     offset = gains[o_off:o_off + m].copy()
     if gains[o_rel] > 0.0:
         offset += state[s_r0:s_r0 + m]
     r_d, v_d, a_d = cosine_reference(offset, gains[o_amp:o_amp + m], gains[o_ph:o_ph + m],
-                                     gains[o_w], t)
+                                     gains[o_w], t_path)
     quat_d, w_d = state[s_qf:s_qf + 4].copy(), state[s_wf:s_wf + 3].copy()
     w_f = gains[o_wf]
+    hold_r, hold_q = guard.hold_views(s_guard, m)
     if targets[_T_POSE_SEQ] != state[s_seq]:
         if state[s_seq] == 0.0:                 # first target: start from the trajectory
             state[s_rf:s_rf + m], state[s_vf:s_vf + m] = r_d, v_d
         state[s_seq] = targets[_T_POSE_SEQ]
-    elif state[s_seq] != 0.0 and dt > 0.0:
-        target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
-        x, xd = _filter_step(state[s_rf:s_rf + m], state[s_vf:s_vf + m], target, w_f, dt)
-        state[s_rf:s_rf + m], state[s_vf:s_vf + m] = x, xd
-        w_rot = state[s_wf:s_wf + 3]
-        err = rotation_vector(quaternion_multiply(targets[_T_QUAT:_T_QUAT + 4],
-                                                  quaternion_conjugate(state[s_qf:s_qf + 4])))
-        w_rot += dt * (w_f * w_f * err - 2.0 * w_f * w_rot)
-        state[s_qf:s_qf + 4] = quaternion_multiply(quaternion_exp(dt * w_rot), state[s_qf:s_qf + 4])
-        quat_d, w_d = state[s_qf:s_qf + 4].copy(), w_rot.copy()
+        guard.saw_target(s_guard, m, True, t)
+        guard.stale_pose(g_guard, s_guard, t, m, state[s_seq])
+    else:
+        stale, just_now = guard.stale_pose(g_guard, s_guard, t, m, state[s_seq])
+        if just_now:                            # hold where the reference is
+            hold_r[:] = state[s_rf:s_rf + m]
+            hold_q[:] = state[s_qf:s_qf + 4]
+        if state[s_seq] != 0.0 and dt > 0.0:
+            if stale:
+                target, target_q = hold_r.copy(), hold_q.copy()
+            else:
+                target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
+                target_q = targets[_T_QUAT:_T_QUAT + 4].copy()
+            x, xd = _filter_step(state[s_rf:s_rf + m], state[s_vf:s_vf + m], target, w_f, dt)
+            state[s_rf:s_rf + m], state[s_vf:s_vf + m] = x, xd
+            w_rot = state[s_wf:s_wf + 3]
+            err = rotation_vector(quaternion_multiply(target_q,
+                                                      quaternion_conjugate(state[s_qf:s_qf + 4])))
+            w_rot += dt * (w_f * w_f * err - 2.0 * w_f * w_rot)
+            state[s_qf:s_qf + 4] = quaternion_multiply(quaternion_exp(dt * w_rot),
+                                                       state[s_qf:s_qf + 4])
+            quat_d, w_d = state[s_qf:s_qf + 4].copy(), w_rot.copy()
     if state[s_seq] != 0.0:
-        target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
+        if guard.pose_is_stale(s_guard, m):
+            target = hold_r.copy()
+        else:
+            target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
         r_d, v_d = state[s_rf:s_rf + m].copy(), state[s_vf:s_vf + m].copy()
         a_d = w_f * w_f * (target - r_d) - 2.0 * w_f * v_d
     f_d = gains[o_fd:o_fd + m].copy()
-    if targets[_T_WRENCH_SEQ] != 0.0:
-        f_d = _rows_of(targets[_T_FORCE:_T_FORCE + 3], rows, m)
-    ramp = smoothstep(t / gains[o_ramp]) if gains[o_ramp] > 0.0 else 1.0
-    f_d *= ramp
-    d_a = gains[o_da]
+    if has_wrench:
+        guard.fresh_wrench(s_guard, m, targets[_T_WRENCH_SEQ], t)
+        f_d = f_target * guard.wrench_factor(g_guard, s_guard, t, dt, m, targets[_T_WRENCH_SEQ])
+    ramp = smoothstep(t_path / gains[o_ramp]) if gains[o_ramp] > 0.0 else 1.0
+    f_d *= guard.contact_ramp(g_guard, s_guard, ramp, math.sqrt(np.sum(f_d * f_d)))
+    _, d_s = guard.monitor(g_guard, s_guard, force, f_d, dt, ramp >= 1.0)
+    d_a = gains[o_da] * d_s
     f_norm = math.sqrt(np.sum(f_d * f_d))
     if d_a > 0.0 and f_norm > 0.0:
         n_f = f_d / f_norm

@@ -72,7 +72,13 @@ from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.core.so3 import orientation_error
 from cr_control.models import spatial_chain as sc
 from cr_control.models.urdf import ChainModel, RobotModelError, Tool, load_chain
-from cr_control.schemes.blocks.references import desired_motion, reference_gains
+from cr_control.schemes.blocks import contact_guard as guard
+from cr_control.schemes.blocks.references import (
+    desired_motion,
+    guard_state_of,
+    reference_gains,
+    reference_gains_size,
+)
 
 #: Rotation rows of the posture projector are scaled by this length (m), see the docstring.
 ORIENTATION_LENGTH = 0.1
@@ -243,10 +249,12 @@ def task_model(values: dict, model_free: bool = False) -> TaskModel:
 def status_fields(model: TaskModel) -> tuple[list[str], list[str]]:
     """(reference fields, status fields) of a task-space scheme on ``model``, stamps first:
     per position axis r_d, v_d, a_d, f_d; r, v, f, e, f_err; tau per joint; then
-    compute_time_us, held, singularity_damping, the orientation error per held rotation axis
-    and, on a redundant arm, the posture error |N_s^T (q_p - q)| (what the posture task,
+    compute_time_us, held, singularity_damping, the orientation error per held rotation axis,
+    on a redundant arm the posture error |N_s^T (q_p - q)| (what the posture task,
     projected beside position and orientation, still pulls at: 0 once the posture is as
-    close to q_p as the task allows).
+    close to q_p as the task allows), then the guard's fields
+    (:data:`contact_guard.GUARD_STATUS_FIELDS`: approach phase, stale targets, the
+    monitor's oscillation RMS and impedance scales).
     On the thesis arm the fields up to held are topics' 2-D ones."""
     ax = model.position_axes
     per = lambda names: [f"{name}_{a}" for name in names for a in ax]  # noqa: E731
@@ -256,7 +264,7 @@ def status_fields(model: TaskModel) -> tuple[list[str], list[str]]:
     task = ["singularity_damping"] + [f"e_rot_{a}" for a in model.orientation_axes]
     if model.redundant:
         task.append("posture_error")
-    return reference, status + task
+    return reference, status + task + guard.GUARD_STATUS_FIELDS
 
 
 # -- compiled: one cycle's task frame -------------------------------------------------------------
@@ -430,7 +438,7 @@ def common_blocks(gains):
     b = a + 4 * n
     c = b + n
     d = c + NULL_SPACE_SIZE
-    e = d + 4 * m + 8 + n      # references.reference_gains(m, n).size
+    e = d + reference_gains_size(m, n)
     return gains[:a], gains[a:b], gains[b:c], gains[c:d], gains[d:e], e
 
 
@@ -451,7 +459,8 @@ def task_front(chain, gains, state, targets, t, dt, q, v, force):
 
 
 @njit(cache=True, error_model="numpy")
-def task_back(gains, frame, tau_task, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out):
+def task_back(gains, state, frame, tau_task, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e,
+              out):
     """Complete the command (the null-space torque and the joint limit guard added, clipped
     to the URDF efforts, in command order) and write command, reference and the status up
     to the scheme's own fields into ``out`` ([command n | reference 4m | status]); returns
@@ -479,4 +488,5 @@ def task_back(gains, frame, tau_task, quat_d, w_d, posture, r_d, v_d, a_d, f_d, 
     if n > m + m_o:
         status[k] = posture_error
         k += 1
-    return status[k:]
+    guard.write_status(guard_state_of(state, m, n), m, status[k:k + 5])
+    return status[k + 5:]

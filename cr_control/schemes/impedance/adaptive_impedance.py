@@ -13,8 +13,9 @@ from __future__ import annotations
 from numba import njit
 
 from cr_control.core.linalg import tmatvec
+from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks import impedance_adaptation as impedance
-from cr_control.schemes.blocks.references import reference_state_size
+from cr_control.schemes.blocks.references import guard_state_of, reference_state_size
 from cr_control.schemes.blocks.task_space import (
     common_blocks,
     model_force,
@@ -33,9 +34,10 @@ def adaptive_impedance_cycle(chain, gains, state, targets, t, dt, q, v, force, o
     law_state = state[reference_state_size(r_d.shape[0], q.shape[0]):]
     e, e_dot = r_d - frame.r, v_d - frame.r_dot
     impedance.impedance_update(law_gains, law_state, e, e_dot, dt)
-    u0 = a_d + impedance.impedance_acceleration(law_state, e, e_dot)
+    k_s, d_s = guard.scales(guard_state_of(state, r_d.shape[0], q.shape[0]), r_d.shape[0])
+    u0 = a_d + impedance.impedance_acceleration(law_state, k_s * e, d_s * e_dot)
     tau = tmatvec(frame.J, model_force(chain, frame, u0, frame.r_dot) - f)
-    extras = task_back(gains, frame, tau, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out)
+    extras = task_back(gains, state, frame, tau, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out)
     extras[:] = law_state[law_state.shape[0] - extras.shape[0]:]   # the estimates: the tail
 
 

@@ -37,7 +37,7 @@ import pinocchio as pin
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError, resolve
-from cr_control.schemes.blocks import references, wrist_sensor
+from cr_control.schemes.blocks import contact_guard, references, wrist_sensor
 from cr_control.schemes.blocks.references import TARGETS, reference_gains, reference_state
 from cr_control.schemes.blocks.task_space import (
     NULL_SPACE_GAINS,
@@ -205,6 +205,12 @@ class TaskSpaceController(Controller):
         self.targets[TARGETS.offset("quaternion")] = 1.0
         self._output = KernelOutput(self)
         self._kernel = type(self).kernel
+        #: Where the guard's state starts in ``internal``, its event counter and the
+        #: events already logged (:meth:`_log_guard_events`).
+        self._guard_at = 3 * m + n + 15
+        self._events_at = self._guard_at + 8 + m
+        self._events_seen = 0.0
+        self._guard_seen = contact_guard.event_state(self.internal, self._guard_at, m)
         self._hold_data = None
         self._new_wrist_sensor()
 
@@ -248,8 +254,9 @@ class TaskSpaceController(Controller):
         common.view(self.gains, "order")[:] = self.command_order
         NULL_SPACE_GAINS.pack(values, common.view(self.gains, "null_space"))
         posture = values["posture"]
+        guarded = contact_guard.guard_gain_values(values, m, self.default_approach_direction())
         reference_gains(m, n).pack({
-            **values, "reference_relative": float(values["reference_relative"]),
+            **guarded, "reference_relative": float(values["reference_relative"]),
             "desired_force": values.get("desired_force", np.zeros(m)),
             "posture": posture if len(posture) else np.zeros(n),
             "posture_given": float(len(posture) > 0)}, common.view(self.gains, "reference"))
@@ -279,8 +286,18 @@ class TaskSpaceController(Controller):
         keeps the bias in use: call ``~/zero_ft`` out of contact for a new one."""
         seen = self._t0 is not None
         super().reset(keep_time)
+        self._events_seen = self.internal[self._events_at]     # the guard's, from the start
+        self._guard_seen = contact_guard.event_state(self.internal, self._guard_at, self.model.m)
         if seen:
             self.wrist.skip_start()
+
+    def default_approach_direction(self) -> np.ndarray:
+        """The guarded approach's direction when approach_direction is zero: against the
+        desired force (into the surface that pushes back with it); zero if there is none
+        (then a target wrench gives it, :mod:`contact_guard`)."""
+        f_d = np.asarray(self.values.get("desired_force", np.zeros(self.model.m)), dtype=float)
+        norm = float(np.linalg.norm(f_d))
+        return -f_d / norm if norm > 0.0 else np.zeros(self.model.m)
 
     def pack_law_gains(self, out: np.ndarray) -> None:
         """Pack the scheme's own gains into ``out`` (default: law_gains_layout by name)."""
@@ -324,6 +341,8 @@ class TaskSpaceController(Controller):
         the base frame): the scheme's kernel; a scheme with more to do overrides this."""
         self._kernel(self.model.chain, self.gains, self.internal, self.targets, t, dt, q, v,
                      force, out)
+        if self.internal[self._events_at] != self._events_seen:
+            self._log_guard_events(t)
         return self._output.views(out)
 
     def _gravity(self, q: np.ndarray) -> np.ndarray:
@@ -345,3 +364,37 @@ class TaskSpaceController(Controller):
         if len(self._command_slots) == self.n_joints:
             views.status[self._command_slots] = views.command
         return views
+
+    def _log_guard_events(self, t: float) -> None:
+        """One line per guard event (contact found or not, a target going stale or fresh
+        again, chatter detected or calmed): the kernel counts them, this says which."""
+        self._events_seen = self.internal[self._events_at]
+        m = self.model.m
+        phase, stale, active, detections = contact_guard.event_state(self.internal,
+                                                                     self._guard_at, m)
+        old_phase, old_stale, old_active, _ = self._guard_seen
+        self._guard_seen = (phase, stale, active, detections)
+        g = self.values
+        if phase != old_phase and phase == contact_guard.IN_CONTACT:
+            self.log_info(f"{self.scheme}: contact at t = {t:.3f} s (force against the approach "
+                          f"above {g['contact_threshold']:g} N): the law takes over from here")
+        if phase != old_phase and phase == contact_guard.NO_CONTACT:
+            self.log_warning(f"{self.scheme}: no contact within approach_distance "
+                             f"{g['approach_distance']:g} m: holding there (t = {t:.3f} s)")
+        for bit, what, action in ((1, "target_pose", "holding the current pose"),
+                                  (2, "target_wrench", "decaying the wrench to zero over "
+                                   f"{g['wrench_timeout_decay']:g} s")):
+            now, before = int(stale) & bit, int(old_stale) & bit
+            if now and not before:
+                self.log_warning(f"{self.scheme}: ~/{what} stale (none for "
+                                 f"{g['target_timeout']:g} s, t = {t:.3f} s): {action}")
+            elif before and not now:
+                self.log_info(f"{self.scheme}: ~/{what} fresh again (t = {t:.3f} s)")
+        if active and not old_active:
+            self.log_warning(f"{self.scheme}: contact force oscillating (RMS above "
+                             f"{g['stability_threshold']:g} N, detection {int(detections)}, "
+                             f"t = {t:.3f} s): stiffness x{g['stability_stiffness_scale']:g}, "
+                             f"damping x{g['stability_damping_scale']:g}")
+        elif old_active and not active:
+            self.log_info(f"{self.scheme}: contact calm again: nominal impedance restored "
+                          f"(t = {t:.3f} s)")

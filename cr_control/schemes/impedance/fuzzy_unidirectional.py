@@ -58,7 +58,7 @@ def fuzzy_unidirectional_cycle(chain, gains, state, targets, t, dt, q, v, force,
                                                     own[5], own[6], own[7])
     s = normal_sliding(n, e, e_dot, lam)
     d_m = rule_set_2_damping(s, f_dm - f_m, f_dm - f_max, f_dm - f_min, k_p, k_n, d_s, d_med, d_b)
-    unidirectional_back(chain, gains, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
+    unidirectional_back(chain, gains, state, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
                         f_m, f_d, e, e_dot, gains_contact, d_m, lam * d_m, lam, out)
 
 

@@ -27,7 +27,7 @@ def impedance_cycle(chain, gains, state, targets, t, dt, q, v, force, out):
     (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, _, e, e_dot,
      gains_contact, own) = unidirectional_front(chain, gains, state, targets, t, dt, q, v, force)
     d_m, k_m = own[0], own[1]
-    unidirectional_back(chain, gains, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
+    unidirectional_back(chain, gains, state, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
                         f_m, f_d, e, e_dot, gains_contact, d_m, k_m, k_m / d_m, out)
 
 

@@ -17,8 +17,9 @@ from numba import njit
 
 from cr_control.core.linalg import matvec, tmatvec
 from cr_control.core.packing import Layout
+from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks import impedance_adaptation as impedance
-from cr_control.schemes.blocks.references import reference_state_size
+from cr_control.schemes.blocks.references import guard_state_of, reference_state_size
 from cr_control.schemes.blocks.sliding_impedance import (
     SlidingCompensator,
     boundary_layer_sign,
@@ -69,8 +70,9 @@ def sliding_back(gains, state, frame, model_terms, d, f, r_d, v_d, a_d, f_d, qua
     law_state = state[reference_state_size(m, n):]
     g_imp, g_sl, s_imp = _sizes(m)
     _, _, _, K_s, delta, _ = sliding_views(law_gains[g_imp:g_imp + g_sl], m)
-    u = model_terms + matvec(K_s, s) + d * boundary_layer_sign(s, delta) - f
-    extras = task_back(gains, frame, tmatvec(frame.J, u), quat_d, w_d, posture, r_d, v_d, a_d,
+    _, d_s = guard.scales(guard_state_of(state, m, n), m)      # the monitor's damping scale
+    u = model_terms + d_s * matvec(K_s, s) + d * boundary_layer_sign(s, delta) - f
+    extras = task_back(gains, state, frame, tmatvec(frame.J, u), quat_d, w_d, posture, r_d, v_d, a_d,
                        f_d, f, e, out)
     extras[:m] = s
     extras[m:2 * m] = law_state[s_imp:s_imp + m]

@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from cr_control.core.linalg import tmatvec
 from cr_control.core.packing import Layout
+from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks import unidirectional_impedance as contact
-from cr_control.schemes.blocks.references import TARGETS
+from cr_control.schemes.blocks.references import TARGETS, guard_state_of
 from cr_control.schemes.blocks.task_space import common_blocks, model_force, task_back, task_front
 from cr_control.schemes.impedance.base import TaskSpaceController
 
@@ -28,19 +30,24 @@ def unidirectional_front(chain, gains, state, targets, t, dt, q, v, force):
     law = gains[common_blocks(gains)[5]:]
     size = contact.contact_gains_size(m)
     gains_contact = law[:size]
-    n, gap, f_m, f_d, f_dm = contact.contact_state(gains_contact, frame.r, f, f_d_ref,
-                                                   targets[_WRENCH_SEQ] != 0.0, ramp)
+    n, gap, f_m, f_d, f_dm = contact.contact_state(
+        gains_contact, frame.r, f, f_d_ref, targets[_WRENCH_SEQ] != 0.0,
+        guard.contact_ramp(common_blocks(gains)[4][4 * m + 8 + q.shape[0]:],
+                           guard_state_of(state, m, q.shape[0]), ramp, gains_contact[0]))
     return (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, f_dm,
             r_d - frame.r, v_d - frame.r_dot, gains_contact, law[size:])
 
 
 @njit(cache=True, error_model="numpy")
-def unidirectional_back(chain, gains, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
-                        f_m, f_d, e, e_dot, gains_contact, d_m, k_m, lam, out):
-    """tau of (5.7) with d_m, k_m; the output vector and the contact status (s with lambda)."""
+def unidirectional_back(chain, gains, state, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n,
+                        gap, f_m, f_d, e, e_dot, gains_contact, d_m, k_m, lam, out):
+    """tau of (5.7) with d_m, k_m (scaled by the contact-stability monitor); the output
+    vector and the contact status (s with lambda)."""
+    k_s, d_s = guard.scales(guard_state_of(state, e.shape[0], frame.q.shape[0]), e.shape[0])
+    d_m, k_m = d_s * d_m, k_s * k_m
     u = contact.impedance_acceleration(gains_contact, a_d, e, e_dot, f, f_d, d_m, k_m)
     tau = tmatvec(frame.J, model_force(chain, frame, u, frame.r_dot) - f)
-    extras = task_back(gains, frame, tau, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out)
+    extras = task_back(gains, state, frame, tau, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out)
     s = contact.normal_sliding(n, e, e_dot, lam)
     contact.write_contact_status(extras, f_m, gap, n, s, d_m, k_m)
 
@@ -78,3 +85,9 @@ class UnidirectionalController(TaskSpaceController):
 
     def law_gain_values(self):
         return contact.contact_gain_values(self.values)
+
+    def default_approach_direction(self):
+        """Against the plane's outward normal (a sphere: none; give approach_direction)."""
+        if self.values["surface"] != "plane":
+            return np.zeros(self.model.m)
+        return -np.asarray(contact.contact_gain_values(self.values)["surface_normal"], dtype=float)

@@ -1,0 +1,229 @@
+"""Contact-ready task-space control (issue 24, items 3-5): the guarded approach, the target
+timeouts and the contact-stability monitor (cr_control.schemes.blocks.contact_guard), in the
+offline loop with the plant's TRUE contact force (OfflineRun.true_force), and in lockstep.
+
+Measured (offline, the Panda's wiping task started 5 cm above the table, adaptive_impedance):
+impact peak of the true force 10.15 N (<= 15 N required), contact at 0.859 s, settled within
+1 N at 1.62 s; the other schemes and the monitor's numbers are in docs/any_robot.md.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from robot_data import needs_erd
+from ros_probe import next_domain
+
+from cr_control.schemes.blocks import contact_guard
+from cr_control.tools import robots
+from cr_control.tools.offline import run_scheme
+
+pytestmark = needs_erd
+
+TARGET = robots.WIPE_FORCE
+CLEARANCE = 0.05
+
+
+def contact_metrics(run) -> dict[str, float]:
+    """Impact peak of the true normal force, the time of contact (the guard's phase turning
+    IN_CONTACT), and the settling time: the last time the true force is more than 1 N off
+    the target."""
+    f = run.true_force[:, 2]
+    t = run.time
+    phase = run.column("approach_phase")
+    touched = np.nonzero(phase == contact_guard.IN_CONTACT)[0]
+    off = np.nonzero(np.abs(f - TARGET) > 1.0)[0]
+    return {"peak": float(f.max()), "t_contact": float(t[touched[0]]) if touched.size else math.inf,
+            "settle": float(t[off[-1]]) if off.size else 0.0,
+            "late_mean": float(f[t >= t[-1] - 2.0].mean())}
+
+
+@pytest.fixture(scope="module")
+def approach_run():
+    return run_scheme("adaptive_impedance", 8.0, robot="panda",
+                      plant_overrides={"start_clearance": CLEARANCE})
+
+
+def test_guarded_approach_from_5_cm_above_the_table(approach_run):
+    """The Panda comes down 5 cm at 5 cm/s, touches, ramps the 10 N in and wipes: the true
+    force's impact peak stays <= 1.5 x the target (measured 10.15 N, contact at 0.859 s,
+    settled at 1.62 s)."""
+    m = contact_metrics(approach_run)
+    assert m["peak"] <= 1.5 * TARGET
+    # 5 cm at 5 cm/s: the adaptive law runs ~1 cm ahead of its reference (its c_hat(0) = 1
+    # m/s^2 offset, the thesis's slow c_hat mode), so it touches at 0.86 s (measured)
+    assert 0.7 < m["t_contact"] < 1.2
+    assert m["settle"] < m["t_contact"] + 3.0
+    assert abs(m["late_mean"] - TARGET) < 0.3
+    # before contact: no force wanted, no force felt
+    before = approach_run.time < m["t_contact"] - 0.05
+    assert np.abs(approach_run.column("f_d_z")[before]).max() == 0.0
+    assert np.abs(approach_run.true_force[before, 2]).max() == 0.0
+    assert approach_run.column("stiffness_scale").min() == 1.0      # the impact is not chatter
+
+
+#: How far the arm ends beyond the held reference (m): the adaptive law's c_hat offset
+#: (measured 12.1 mm, creeping back at 1 mm/s), the fixed impedance's tracking (measured).
+BEYOND_M = {"adaptive_impedance": 0.015, "impedance": 0.002}
+
+
+@pytest.mark.parametrize("robot,scheme", [("panda", "adaptive_impedance"), ("ur5", "impedance")])
+def test_no_surface_in_reach_stops_after_approach_distance_and_holds(robot, scheme):
+    """The table 30 cm below: the reference travels approach_distance (10 cm), stops there and
+    holds; the arm follows as its law does and comes to rest. It never pushes on into the void."""
+    r = run_scheme(scheme, 4.0, robot=robot, plant_overrides={"start_clearance": 0.3})
+    distance = robots.APPROACH["approach_distance"]
+    z, z_d = r.column("r_z"), r.column("r_d_z")
+    phase = r.column("approach_phase")
+    assert phase[-1] == contact_guard.NO_CONTACT
+    stopped = r.time[np.argmax(phase == contact_guard.NO_CONTACT)]
+    assert 2.0 < stopped < 2.6                 # 10 cm at 5 cm/s, braking over the last 5 mm
+    assert np.nanmax(np.abs(r.true_force)) == 0.0
+    assert np.abs(z[0] - z_d[r.time >= stopped] - distance).max() < 1e-4   # reference held
+    dropped = z[0] - z
+    assert dropped.max() < distance + BEYOND_M[scheme]
+    late = r.time >= 3.0
+    assert np.abs(r.column("v_z")[late]).max() < 2e-3          # at rest
+
+
+def test_approach_off_leaves_the_start_in_contact():
+    """approach_speed 0 (the default on every scheme): phase OFF throughout, as before."""
+    r = run_scheme("impedance", 0.3, {"approach_speed": 0.0}, robot="ur5")
+    assert np.all(r.column("approach_phase") == contact_guard.OFF)
+
+
+# -- target timeouts: a publisher at 100 Hz (set_target_* every 10 ms) that stops -------------------
+STREAM_UNTIL = 1.5
+
+
+def test_stale_pose_target_holds_the_current_pose():
+    """A target pose moving at 2 cm/s along x, streamed at 100 Hz, stops at 1.5 s: 0.5 s
+    later (cycle time) the reference is held where it is (no jump), logged in the status;
+    streaming again from 4 s resumes through the target filter, again without a jump."""
+    start = np.array(robots.home_tip(robots.robot("ur5")))
+    down = np.array([0.0, 1.0, 0.0, 0.0])    # tool0 pointing down: the home orientation
+
+    def hook(k, t, controller, _plant):
+        if k % 10 == 0 and (t < STREAM_UNTIL or t >= 4.0):
+            controller.set_target_pose(start + np.array([0.02 * t, 0.0, 0.0]), down)
+
+    r = run_scheme("impedance", 5.0, {"approach_speed": 0.0, "reference_amplitude": [0.0] * 3,
+                                      "reference_offset": [0.0] * 3},
+                   robot="ur5", hook=hook)
+    t, stale = r.time, r.column("target_stale")
+    assert np.all(stale[t < STREAM_UNTIL + 0.5 - 0.011] == 0.0)
+    went = t[np.nonzero(stale)[0][0]]
+    assert STREAM_UNTIL + 0.49 < went < STREAM_UNTIL + 0.52
+    assert np.all(stale[(t > went) & (t < 4.0)] == contact_guard.POSE_STALE)
+    assert np.all(stale[t > 4.01] == 0.0)
+    r_d = r.column("r_d_x")
+    # no jump anywhere: the stream resumes 5 cm ahead of the held point, and the target
+    # filter (w_f = 5 rad/s) asks at most w_f * 5 cm / e = 0.09 m/s and w_f^2 * 5 cm = 1.25 m/s^2
+    assert np.abs(np.diff(r_d)).max() < 1.5e-4
+    assert np.abs(np.diff(r.column("v_d_x"))).max() < 2e-3
+    held = (t >= 3.5) & (t < 4.0)
+    assert np.ptp(r_d[held]) < 1e-5                            # held
+    assert abs(r_d[held][-1] - start[0] - 0.02 * STREAM_UNTIL) < 0.01   # where the stream left it
+    assert np.ptp(r.column("r_x")[held]) < 1e-4                # and the arm with it
+    assert r_d[-1] > r_d[held][-1] + 0.02                      # following the target again
+
+
+def test_stale_wrench_target_decays_to_zero_and_a_fresh_one_ramps_back():
+    """A 5 N target wrench streamed at 100 Hz stops at 1.5 s: stale at 2.0 s, f_d decays to
+    zero over wrench_timeout_decay (1 s); streaming again at 3.5 s ramps it back without a jump."""
+    wrench = np.array([0.0, 0.0, 5.0])
+
+    def hook(k, t, controller, _plant):
+        if k % 10 == 0 and (t < STREAM_UNTIL or t >= 3.5):
+            controller.set_target_wrench(wrench)
+
+    r = run_scheme("adaptive_impedance", 5.0, {"approach_speed": 0.0, "force_ramp_time": 0.0},
+                   robot="panda", hook=hook)
+    t, f_d, stale = r.time, r.column("f_d_z"), r.column("target_stale")
+    assert np.all(f_d[(t > 0.01) & (t < 2.0)] == 5.0)
+    assert np.all(stale[(t > 2.02) & (t < 3.5)] == contact_guard.WRENCH_STALE)
+    assert np.all(f_d[(t > 3.02) & (t < 3.5)] == 0.0)
+    assert np.abs(np.diff(f_d)).max() < 5.0 * 1.5e-3 * 1.01     # smoothstep over 1 s: 7.5 N/s
+    assert f_d[-1] == 5.0 and stale[-1] == 0.0
+
+
+# -- contact-stability monitor ---------------------------------------------------------------------
+def stiff_table(monitor: bool):
+    from cr_control.tools.session import _load_params_file, config_file
+    params = _load_params_file(config_file("panda_stiff_table.yaml"))
+    ctrl = {**params["adaptive_impedance"], "stability_monitor": monitor}
+    plant = {k: v for k, v in params["plant"].items() if k != "scenario"}
+    return run_scheme("adaptive_impedance", 8.0, ctrl, robot="panda", plant_overrides=plant)
+
+
+def oscillation_rms(run, start: float, end: float) -> float:
+    w = (run.time >= start) & (run.time < end)
+    f = run.true_force[w, 2]
+    return float(np.sqrt(np.mean((f - f.mean()) ** 2)))
+
+
+def longest_loss_s(run, start: float) -> float:
+    """The longest spell without contact (true normal force 0) after ``start`` (s)."""
+    lost = (run.true_force[:, 2] <= 0.0) & (run.time >= start)
+    longest = current = 0
+    for x in lost:
+        current = current + 1 if x else 0
+        longest = max(longest, current)
+    return longest * 1e-3
+
+
+def test_monitor_calms_the_stiff_table():
+    """config/panda_stiff_table.yaml: without the monitor the tool bounces on the table
+    (measured: 20.3-20.4 N RMS over every 2 s window, contact lost up to 17 ms at a time,
+    66 N peaks); with it the monitor reacts at 1.003 s (armed once the force is ramped in)
+    and the true force's oscillation over 2-4, 4-6 and 6-8 s is 0.12, 0.03 and 0.96 N RMS
+    (>= 5x lower: required), contact lost at most 13 ms at a time once it has reacted (<= 20
+    ms required)."""
+    off, on = stiff_table(False), stiff_table(True)
+    assert off.column("stiffness_scale").min() == 1.0
+    assert on.column("stiffness_scale").min() == pytest.approx(0.2)
+    reacted = on.time[np.argmax(on.column("stiffness_scale") < 1.0)]
+    assert reacted < robots.FORCE_RAMP_TIME + 0.5       # armed once the force is ramped in
+    for start in (2.0, 4.0, 6.0):
+        rms_off, rms_on = oscillation_rms(off, start, start + 2.0), oscillation_rms(on, start, start + 2.0)
+        assert rms_off > 15.0, start                                   # it chatters
+        assert rms_on * 5.0 <= rms_off, start
+    assert longest_loss_s(off, 0.5) > 0.01
+    assert longest_loss_s(on, reacted) <= 0.02
+    assert abs(on.true_force[on.time >= 6.0, 2].mean() - TARGET) < 0.5
+
+
+def test_monitor_never_triggers_in_the_wiping_task():
+    """Panda and UR5, touching at the start and 5 cm above: the monitor stays calm."""
+    for robot, clearance in (("panda", 0.0), ("ur5", 0.0), ("ur5", CLEARANCE)):
+        r = run_scheme("adaptive_impedance", 5.0, robot=robot,
+                       plant_overrides={"start_clearance": clearance})
+        assert r.column("stiffness_scale").min() == 1.0, (robot, clearance)
+        assert r.column("oscillation_rms").max() < 0.5 * 2.0, (robot, clearance)
+
+
+def test_lockstep_session_approaches_like_the_offline_loop(tmp_path):
+    """cr_session --robot panda -p plant.start_clearance=0.05 in lockstep: contact at the
+    offline loop's cycle, the same forces."""
+    from cr_control.analysis.analyze import load_session
+    from cr_control.tools.session import Session, SessionConfig
+
+    duration = 2.5
+    cfg = SessionConfig(scheme="adaptive_impedance", duration=duration, mode="lockstep",
+                        out=tmp_path, domain_id=next_domain(), name="run", robot="panda",
+                        overrides=[f"plant.start_clearance={CLEARANCE}"])
+    s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
+    offline = run_scheme("adaptive_impedance", duration, robot="panda",
+                         plant_overrides={"start_clearance": CLEARANCE})
+    rows = np.rint(s.status["stamp"] * 1e3).astype(int)
+    assert len(rows) > 0.9 * duration * 1000
+    for field in ("approach_phase", "stiffness_scale"):       # contact at the same cycle
+        assert np.abs(s.status[field] - offline.column(field)[rows]).max() < 1e-6, field
+    before = s.status["approach_phase"] == contact_guard.APPROACHING
+    for field in ("r_z", "tau_2"):                           # bit for bit until contact
+        assert np.abs(s.status[field][before] - offline.column(field)[rows][before]).max() < 1e-6
+    # from the impact on, the plant node's torque-rate limit (1000 N m/s; the offline loop
+    # has none) shapes the braking: measured 0.61 N apart at most, 0.003 N at the end
+    diff = np.abs(s.status["f_z"] - offline.column("f_z")[rows])
+    assert diff.max() < 1.0 and diff[-100:].max() < 0.02
+    assert s.status["approach_phase"][-1] == contact_guard.IN_CONTACT
