@@ -122,6 +122,10 @@ NODE_PARAMETERS = [
           "nonnegative", read_only=True, bound=Bound.TIME),
     Param("wait_for_recorder", False, "Start only after the recorder says it is ready "
           f"({topics.RECORDER_READY}), so a recording misses nothing.", "bool", read_only=True),
+    Param("contact_wrench_every", 1, "Publish the true contact wrench (analysis only) every "
+          "this many states (integer >= 1); cr_session sets 10 in real time, where each "
+          "publish costs the 1 kHz loop (as the controllers' diagnostics_every).", "integer",
+          read_only=True, bound=1000),
     Param("lockstep_resend_s", 1.0, "Lockstep: republish the state if no command came for "
           "this long (wall s).", "positive", read_only=True, bound=60.0),
     Param("watchdog_missed_cycles", 100, "Realtime watchdog: consecutive ticks without a new "
@@ -171,6 +175,9 @@ _RING = 64
 #: 63 characters, all three arrays filled, a 255-character frame_id: MAX_COMMAND_BYTES) is
 #: refused unread, whatever the plant's joints (the Panda has 9, the largest URDF here).
 MAX_COMMAND_JOINTS = 64
+#: Realtime: a tick integrates at most this many periods of the wall time since the last
+#: one (20 ms); a longer stall of the loop is dropped, not integrated with a stale command.
+MAX_CATCH_UP_PERIODS = 20
 MAX_COMMAND_BYTES = len(cdr.Writer(cdr.joint_state, frame_id="f" * 255,
                                    name=["n" * 63] * MAX_COMMAND_JOINTS,
                                    **dict.fromkeys(("position", "velocity", "effort"),
@@ -245,7 +252,7 @@ class PlantNode(Node):
         scenario = declare(self, [SCENARIO_PARAMETER])
         specs, factory = SCENARIOS[scenario["scenario"]]
         self.settings = declare(self, NODE_PARAMETERS)
-        for name in ("watchdog_missed_cycles", "command_handover_cycles"):
+        for name in ("watchdog_missed_cycles", "command_handover_cycles", "contact_wrench_every"):
             if self.settings[name] < 1:
                 raise ParameterError(f"parameter {name} must be >= 1")
         self.plant = factory(declare(self, specs))
@@ -308,6 +315,8 @@ class PlantNode(Node):
         self._t0_wall = 0.0
         self._last_tick = 0.0
         self._carry = 0.0          # realtime: wall time not yet simulated (s)
+        self._dropped_s = 0.0      # realtime: wall time of stalls not simulated (s)
+        self._contact_count = 0    # states since the last true contact wrench
         # Realtime: seconds the step ahead of the next tick took (None: not stepped ahead).
         self._ahead_time: float | None = None
         self._last_publish_wall = 0.0
@@ -437,6 +446,7 @@ class PlantNode(Node):
             f"done: {self.plant.time:.3f} s simulated in {time.monotonic() - self._t0_wall:.3f} s wall, "
             f"{self.stats.total_cycles} cycles, {self.stats.commands_refused} commands refused, "
             f"{self.stats.commands_clipped} clipped"
+            + (f", {self._dropped_s:.3f} s of stalls not simulated" if self._dropped_s else "")
             + (f", in safe stop ({SAFE_STOP_REASONS[self.stats.safe_stop_reason]})"
                if self.safe_stop else ""))
         wait_for_readers(list(self.publishers), 2.0)   # the last messages reach the recorder
@@ -463,17 +473,19 @@ class PlantNode(Node):
             self._clock_out.set_stamp(sec, nanosec)
             self.clock_pub.publish(self._clock_out.message())
         self.wrench_pub.publish(wrench.message())
-        if self._truth is not None:
-            truth = self._truth()
-            self._contact.set_stamp(sec, nanosec)
-            self._contact_out[:3] = truth.force
-            self._contact_out[3:] = truth.torque
-            self.contact_pub.publish(self._contact.message())
         if self.sensors_pub is not None:
             self._sensors_out[0] = sec + nanosec * 1e-9
             self._sensors_out[1:] = self.plant.sensors()
             self.sensors_pub.publish(self._sensors.message())
         self.state_pub.publish(state.message())
+        self._contact_count += 1
+        if self._truth is not None and self._contact_count >= self.settings["contact_wrench_every"]:
+            self._contact_count = 0         # after the state: the loop's messages go first
+            truth = self._truth()
+            self._contact.set_stamp(sec, nanosec)
+            self._contact_out[:3] = truth.force
+            self._contact_out[3:] = truth.torque
+            self.contact_pub.publish(self._contact.message())
         now = time.monotonic()
         key = sec * 1_000_000_000 + nanosec
         self.state_stamp = key
@@ -736,8 +748,14 @@ class PlantNode(Node):
         # (an LTI plant's exact discretisation is then computed once, not every tick:
         # ~190 us -> ~4 us for the ch. 4 plant) and simulated time follows wall time to
         # within a period.
+        # After a gap (a stalled tick) at most MAX_CATCH_UP_PERIODS are integrated: the rest
+        # of the gap is dropped (simulated time falls behind wall time; said in the "done"
+        # line) rather than integrated under a command held that long.
         due = elapsed + self._carry
         substeps = max(1, round(due / self.period))
+        if substeps > MAX_CATCH_UP_PERIODS:
+            self._dropped_s += (substeps - MAX_CATCH_UP_PERIODS) * self.period
+            substeps, due = MAX_CATCH_UP_PERIODS, MAX_CATCH_UP_PERIODS * self.period
         self._carry = max(due - substeps * self.period, -self.period)
         ahead, self._ahead_time = self._ahead_time, None
         for _ in range(substeps - (ahead is not None)):

@@ -195,6 +195,8 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
             # cycle. Lockstep keeps every cycle (thesis figures, offline equality);
             # -p <scheme>.diagnostics_every=1 gives the full rate in real time too.
             params[scheme]["diagnostics_every"] = REALTIME_DIAGNOSTICS_EVERY
+    if cfg.mode == "realtime":
+        params["plant"]["contact_wrench_every"] = REALTIME_DIAGNOSTICS_EVERY
     if cfg.switch_to is not None:
         params[cfg.switch_to]["autostart"] = False
     params["recorder"] = {
