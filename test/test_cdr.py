@@ -184,7 +184,7 @@ def test_wrench_and_array_readers_against_rclpy():
         f, t = w.wrench.force, w.wrench.torque
         f.x, f.y, f.z, t.x, t.y, t.z = values
         assert tuple(wrench_reader(serialize_message(w))) == (
-            w.header.stamp.sec, 0, tuple(values[:3]), tuple(values[3:]))
+            w.header.stamp.sec, 0, tuple(values[:3]), tuple(values[3:]), w.header.frame_id)
         a = Float64MultiArray()
         a.layout.dim = [MultiArrayDimension(label="l" * rng.randrange(0, 7), size=rng.randrange(9),
                                             stride=3) for _ in range(rng.randrange(3))]

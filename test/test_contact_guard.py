@@ -22,6 +22,16 @@ pytestmark = needs_erd
 
 TARGET = robots.WIPE_FORCE
 CLEARANCE = 0.05
+#: The robots' wrist sensor without its noise (the lockstep comparison: the plant node's
+#: torque-rate limit acts on noise-driven commands, the offline loop has none), and the ideal
+#: sensor with no start-up hold (the timeout tests time the guard in the law's clock, which
+#: the 31 ms hold of zero_ft_at_start shifts). The guard runs with the full wrist sensor in
+#: the wiping tests (test_robots.py) and in test_monitor_never_triggers_in_the_wiping_task.
+NOISE_FREE = {"ft_noise_std": [0.0, 0.0]}
+IDEAL_PLANT = {"sensor_frame": "", "tool_mass": 0.0, "tool_com": [0.0] * 3,
+               "tool_inertia": [0.0] * 6, "ft_bias": [0.0] * 6, "ft_noise_std": [0.0, 0.0]}
+IDEAL_CONTROLLER = {"sensor_frame": "", "tool_mass": 0.0, "tool_com": [0.0] * 3,
+                    "zero_ft_at_start": False}
 
 
 def contact_metrics(run) -> dict[str, float]:
@@ -71,7 +81,7 @@ BEYOND_M = {"adaptive_impedance": 0.015, "impedance": 0.002}
 def test_no_surface_in_reach_stops_after_approach_distance_and_holds(robot, scheme):
     """The table 30 cm below: the reference travels approach_distance (10 cm), stops there and
     holds; the arm follows as its law does and comes to rest. It never pushes on into the void."""
-    r = run_scheme(scheme, 4.0, robot=robot, plant_overrides={"start_clearance": 0.3})
+    r = run_scheme(scheme, 4.0, robot=robot, plant_overrides={"start_clearance": 0.3, **NOISE_FREE})
     distance = robots.APPROACH["approach_distance"]
     z, z_d = r.column("r_z"), r.column("r_d_z")
     phase = r.column("approach_phase")
@@ -108,8 +118,8 @@ def test_stale_pose_target_holds_the_current_pose():
             controller.set_target_pose(start + np.array([0.02 * t, 0.0, 0.0]), down)
 
     r = run_scheme("impedance", 5.0, {"approach_speed": 0.0, "reference_amplitude": [0.0] * 3,
-                                      "reference_offset": [0.0] * 3},
-                   robot="ur5", hook=hook)
+                                      "reference_offset": [0.0] * 3, **IDEAL_CONTROLLER},
+                   robot="ur5", hook=hook, plant_overrides=IDEAL_PLANT)
     t, stale = r.time, r.column("target_stale")
     assert np.all(stale[t < STREAM_UNTIL + 0.5 - 0.011] == 0.0)
     went = t[np.nonzero(stale)[0][0]]
@@ -137,8 +147,9 @@ def test_stale_wrench_target_decays_to_zero_and_a_fresh_one_ramps_back():
         if k % 10 == 0 and (t < STREAM_UNTIL or t >= 3.5):
             controller.set_target_wrench(wrench)
 
-    r = run_scheme("adaptive_impedance", 5.0, {"approach_speed": 0.0, "force_ramp_time": 0.0},
-                   robot="panda", hook=hook)
+    r = run_scheme("adaptive_impedance", 5.0, {"approach_speed": 0.0, "force_ramp_time": 0.0,
+                                               **IDEAL_CONTROLLER},
+                   robot="panda", hook=hook, plant_overrides=IDEAL_PLANT)
     t, f_d, stale = r.time, r.column("f_d_z"), r.column("target_stale")
     assert np.all(f_d[(t > 0.01) & (t < 2.0)] == 5.0)
     assert np.all(stale[(t > 2.02) & (t < 3.5)] == contact_guard.WRENCH_STALE)
@@ -211,10 +222,11 @@ def test_lockstep_session_approaches_like_the_offline_loop(tmp_path):
     duration = 2.5
     cfg = SessionConfig(scheme="adaptive_impedance", duration=duration, mode="lockstep",
                         out=tmp_path, domain_id=next_domain(), name="run", robot="panda",
-                        overrides=[f"plant.start_clearance={CLEARANCE}"])
+                        overrides=[f"plant.start_clearance={CLEARANCE}",
+                                   "plant.ft_noise_std=[0.0, 0.0]"])
     s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
     offline = run_scheme("adaptive_impedance", duration, robot="panda",
-                         plant_overrides={"start_clearance": CLEARANCE})
+                         plant_overrides={"start_clearance": CLEARANCE, **NOISE_FREE})
     rows = np.rint(s.status["stamp"] * 1e3).astype(int)
     assert len(rows) > 0.9 * duration * 1000
     for field in ("approach_phase", "stiffness_scale"):       # contact at the same cycle
@@ -223,7 +235,8 @@ def test_lockstep_session_approaches_like_the_offline_loop(tmp_path):
     for field in ("r_z", "tau_2"):                           # bit for bit until contact
         assert np.abs(s.status[field][before] - offline.column(field)[rows][before]).max() < 1e-6
     # from the impact on, the plant node's torque-rate limit (1000 N m/s; the offline loop
-    # has none) shapes the braking: measured 0.61 N apart at most, 0.003 N at the end
+    # has none) shapes the braking: measured 0.61 N apart at most, 0.003 N at the end, with the
+    # ideal sensor; 1.98 N with the wrist sensor's tool in the arm (its noise off)
     diff = np.abs(s.status["f_z"] - offline.column("f_z")[rows])
-    assert diff.max() < 1.0 and diff[-100:].max() < 0.02
+    assert diff.max() < 2.5 and diff[-100:].max() < 0.02
     assert s.status["approach_phase"][-1] == contact_guard.IN_CONTACT

@@ -139,11 +139,14 @@ def _check_switch(result, session, at: float) -> None:
     t0 = session.wrench.time[0]
     assert first[-1] < second[0] and abs(second[0] - t0 - at) < 0.5
     assert session.message_counts["/robust_adaptive_impedance/transition_event"] >= 2
-    # Contact is never lost: the chapter 3 force (it starts at zero, touching) stays up.
+    # Contact is never lost: the chapter 3 force (it starts at zero, touching) stays up once
+    # it has built up (4 N: ~0.3 s into the run; judged from there, as a real-time start may
+    # drop a stalled first tick's wall time).
     t = session.wrench.time - t0
     force = np.linalg.norm(session.wrench.force, axis=1)
-    after = t > 0.3
-    print(f"|f| after 0.3 s: min {force[after].min():.3f} N; around the switch: "
+    after = np.arange(len(t)) >= int(np.argmax(force > 4.0))
+    assert force.max() > 4.0
+    print(f"|f| once up: min {force[after].min():.3f} N; around the switch: "
           f"{force[np.abs(t - at) < 0.3].min():.3f}..{force[np.abs(t - at) < 0.3].max():.3f} N; "
           f"longest run without a command: {session.timing['window_max_missed_run'].max():g} ticks")
     assert force[after].min() > 3.0

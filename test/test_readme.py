@@ -12,7 +12,10 @@ runner below, which runs it as written except for these stated substitutions:
 - sessions run 1 s (``--duration 1`` added; ``make demo DURATION=1``) and recordings go to a
   temporary ``--out``, so the test stays short;
 - the README's long-running nodes (``.venv/bin/plant``, ``.venv/bin/adaptive_impedance``) run
-  until the commands addressed to them are done, then get Ctrl-C.
+  until the commands addressed to them are done, then get Ctrl-C;
+- ``tool.yaml``, ``sweeps/...``, ``tuned/``, ``report/`` -> the temporary directory, and the
+  example sweep and tuning specs are run as copies with 0.5 s runs, two grid values per
+  parameter and two tuning samples (the figures of the full specs are in the docs).
 
 A README command no runner knows fails :func:`test_every_readme_command_has_a_runner`.
 """
@@ -141,6 +144,37 @@ def offline_chapter(readme: Readme, command: str) -> None:
     assert list((readme.tmp / "chapter").rglob("*.png"))
 
 
+def _short_spec(readme: Readme, path: str) -> str:
+    """A copy of an example spec with 0.5 s runs, two values per grid parameter, two samples."""
+    import yaml
+
+    spec = yaml.safe_load((ROOT / path).read_text())
+    spec["duration"] = 0.5
+    if "vary" in spec:
+        spec["vary"] = {k: v[:2] if isinstance(v, list) else v for k, v in spec["vary"].items()}
+    if "samples" in spec:
+        spec["samples"] = 2
+    out = readme.tmp / Path(path).name
+    out.write_text(yaml.safe_dump(spec))
+    return str(out)
+
+
+def experiments(readme: Readme, command: str) -> None:
+    args = readme.argv(command)
+    args = [_short_spec(readme, a) if a.startswith("docs/examples/") else a for a in args]
+    i = args.index("--out")
+    args[i + 1] = str(readme.tmp / args[i + 1])
+    proc = readme.run(args, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+
+
+def identify(readme: Readme, command: str) -> None:
+    args = [a if a != "tool.yaml" else str(readme.tmp / "tool.yaml") for a in readme.argv(command)]
+    proc = readme.run(args, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "tool_mass" in (readme.tmp / "tool.yaml").read_text()
+
+
 def make_demo(readme: Readme, command: str) -> None:
     args = readme.argv(command) + ["DURATION=1", f"OUT={readme.tmp / 'demo'}"]
     proc = readme.run(args, timeout=600, own_domain=True)
@@ -160,11 +194,13 @@ RUNNERS: list[tuple[re.Pattern, Callable[[Readme, str], None]]] = [
     (re.compile(r"^\.venv/bin/cr_lifecycle "), expect(0)),
     (re.compile(r"^\.venv/bin/cr_analyze "), analyze),
     (re.compile(r"^python -m cr_control\.analysis\.chapter\d OUT$"), offline_chapter),
+    (re.compile(r"^\.venv/bin/cr_identify_tool "), identify),
+    (re.compile(r"^\.venv/bin/cr_(sweep|tune|reproduce) "), experiments),
 ]
 #: The order runners run in: sessions (recordings) first, then the nodes and what talks to
 #: them, then the analysis.
 ORDER = ("make demo", "cr_session", "plant", "adaptive_impedance", "cr_param", "cr_lifecycle",
-         "cr_analyze", "python -m")
+         "cr_analyze", "python -m", "cr_identify_tool", "cr_sweep", "cr_tune", "cr_reproduce")
 
 
 def runner(command: str) -> Callable[[Readme, str], None] | None:
@@ -178,7 +214,11 @@ def test_every_readme_command_has_a_runner():
 
 
 def _rank(command: str) -> int:
-    return next(i for i, key in enumerate(ORDER) if key in command)
+    """The position in ORDER of the command's program (``make demo``, ``python -m``, or the
+    executable's name)."""
+    words = command.split()
+    program = " ".join(words[:2]) if words[0] in ("make", "python") else words[0].rpartition("/")[2]
+    return ORDER.index(program)
 
 
 def test_the_readme_commands_run(tmp_path, ros_env):

@@ -92,7 +92,7 @@ def metrics(run, robot: str) -> dict[str, float]:
     t = run.time
     late = t >= t[-1] / 2
     path = np.hypot(run.column("e_x"), run.column("e_y"))
-    f_z = run.contact_force[:, 2]              # the true contact force
+    f_z = run.true_force[:, 2]              # the true contact force
     rot = np.linalg.norm(np.column_stack([run.column(f"e_rot_{a}") for a in "xyz"]), axis=1)
     r = robots.robot(robot)
     limits = load_chain("", r.urdf_file, r.base_link, r.tip_link).limits
@@ -111,7 +111,7 @@ def metrics(run, robot: str) -> dict[str, float]:
 def contact_from(run, scheme: str) -> float:
     """The smallest true normal force once contact must hold (see the module docstring)."""
     since = LAW_START_S + CONTACT_FROM_S.get(scheme, 0.05)
-    return float(run.contact_force[run.time >= since, 2].min())
+    return float(run.true_force[run.time >= since, 2].min())
 
 
 @pytest.fixture(scope="module", params=CASES, ids=[f"{r}-{s}" for r, s in CASES])

@@ -81,8 +81,8 @@ def test_in_static_contact_it_is_the_contact_force():
     run = offline.run(c, plant, 2.0)
     law = np.column_stack([run.column(f"f_{a}") for a in "xyz"])
     late = run.time > 1.0
-    assert run.contact_force[late, 2].min() > 5.0
-    assert np.abs(law[late] - run.contact_force[late]).max() < 0.05
+    assert run.true_force[late, 2].min() > 5.0
+    assert np.abs(law[late] - run.true_force[late]).max() < 0.05
 
 
 def test_a_sensor_frame_off_the_tips_body_is_refused_in_one_line():
@@ -214,21 +214,23 @@ def test_compensated_wiping_holds_the_true_force(wiping):
     """Measured 9.935 N over the last half (the requirement: 10 N +- 1 N)."""
     run = wiping["on"]
     late = run.time >= 3.0
-    f = run.contact_force[late, 2]
+    f = run.true_force[late, 2]
     print(f"compensation on: true normal force {f.mean():.3f} N (std {f.std():.3f}), the "
           f"law's reading {run.column('f_z')[late].mean():.3f} N")
     assert abs(f.mean() - robots.WIPE_FORCE) < 0.15
-    assert run.contact_force[run.time >= 0.05, 2].min() > 0.0      # contact never lost
+    assert run.true_force[run.time >= 0.05, 2].min() > 0.0      # contact never lost
 
 
 def test_without_compensation_the_wiping_fails(wiping):
-    """The sensor's reading taken as the base-frame force: measured true mean 6.5 N, std
-    35 N, peaks of 293 N (module docstring)."""
+    """The sensor's reading taken as the base-frame force: before the guarded approach,
+    true mean 6.5 N, std 35 N, peaks of 293 N; with it (the robot profiles approach until
+    contact), a 209 N peak, then a joint at its limit and the tool off the table (0 N over
+    3-6 s). Either way far from the 10 N asked."""
     run = wiping["off"]
-    f = run.contact_force[run.time >= 3.0, 2]
+    f = run.true_force[run.time >= 3.0, 2]
     print(f"compensation off: true normal force mean {f.mean():.2f} N, std {f.std():.2f} N, "
-          f"max {run.contact_force[:, 2].max():.1f} N")
-    assert f.std() > 10.0 and run.contact_force[:, 2].max() > 100.0
+          f"max {run.true_force[:, 2].max():.1f} N")
+    assert abs(f.mean() - robots.WIPE_FORCE) > 5.0 and run.true_force[:, 2].max() > 100.0
 
 
 # -- identification -------------------------------------------------------------------------------

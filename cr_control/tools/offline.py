@@ -85,9 +85,9 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
     }
     true_force = getattr(plant, "contact_force", None)
     for k in range(steps):
-        if hook is not None:
-            hook(k, k * period, controller, plant)
         m = plant.measurement()
+        if hook is not None:
+            hook(k, m.time, controller, plant)
         if sensor_index is not None:
             sensors = plant.sensors()
             controller.plant_sensors[:] = [sensors[i] for i in sensor_index]

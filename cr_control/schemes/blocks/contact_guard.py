@@ -12,7 +12,8 @@ expects; the chapter 5 laws: against their plane's normal):
 
 (T_a = APPROACH_RAMP_S: the speed ramps in, and it brakes over the last v_a T_a of the
 ``approach_distance`` D), with the desired force zero and the scheme's path frozen. Contact
-is the force on the tool against u above ``contact_threshold``: -u^T f > f_c. From then the
+is the force on the tool against u above ``contact_threshold`` for CONTACT_CONFIRM_CYCLES (5)
+cycles in a row: -u^T f > f_c (a noisy sensor crosses f_c now and then). From then the
 scheme runs as if it had started at that instant at that point: its path is relative to the
 contact point (a relative reference) and the desired force is ramped in over
 ``force_ramp_time`` from f_c (not from zero, which would let the impedance laws of chapter 5
@@ -82,6 +83,8 @@ MONITOR_MIN_CROSSINGS = 10.0
 OFF, APPROACHING, IN_CONTACT, NO_CONTACT = 0.0, 1.0, 2.0, 3.0
 #: target_stale bits in the status.
 POSE_STALE, WRENCH_STALE = 1.0, 2.0
+#: Cycles in a row above contact_threshold that make a contact (5 ms at 1 kHz).
+CONTACT_CONFIRM_CYCLES = 5
 
 
 def guard_parameters(m: int) -> list[Param]:
@@ -199,11 +202,18 @@ def approach(g, s, t, dt, r, r_start, force, target_force, has_target_force):
         if tf > 0.0:
             u[:] = -target_force / tf
             norm = 1.0
+    # Contact once the force has been above the threshold for CONTACT_CONFIRM_CYCLES cycles in
+    # a row (counted in t_contact until then): a wrist sensor's noise (0.2 N) crosses a 0.5 N
+    # threshold now and then, never CONTACT_CONFIRM_CYCLES times running.
     if norm > 0.0 and -np.sum(u * force) > g[_G_THRESHOLD]:
-        s[_S_PHASE] = IN_CONTACT
-        s[_S_T_CONTACT] = t
-        event(s, m)
-        return True, r.copy(), np.zeros(m), np.zeros(m)
+        s[_S_T_CONTACT] += 1.0
+        if s[_S_T_CONTACT] >= CONTACT_CONFIRM_CYCLES:
+            s[_S_PHASE] = IN_CONTACT
+            s[_S_T_CONTACT] = t
+            event(s, m)
+            return True, r.copy(), np.zeros(m), np.zeros(m)
+    else:
+        s[_S_T_CONTACT] = 0.0
     speed, distance = g[_G_SPEED], g[_G_DISTANCE]
     travelled, old = s[_S_S], s[_S_S_DOT]
     new = 0.0
