@@ -28,7 +28,8 @@ def test_identification_through_the_topics(tmp_path, ros_env):
     session = subprocess.Popen(
         [sys.executable, "-m", "cr_control.tools.session", "--robot", "panda", "--mode",
          "lockstep", "--duration", "40", "--no-analysis", "--no-record", "--out", str(tmp_path),
-         "-p", "plant.surface=none"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+         "-p", "plant.surface=none", "-p", "adaptive_impedance.approach_speed=0.0"], env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         text=True)
     try:
         first = session.stdout.readline()

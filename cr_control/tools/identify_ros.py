@@ -15,7 +15,8 @@ task-space controller, ``/joint_states`` and the wrist sensor's wrench
 3. goes back to the start pose and returns the averages for the least squares.
 
 The arm must be in free space, the controller asking no contact force (a ``target_wrench``
-of zero is sent before the first pose). The controller's own compensation does not matter:
+of zero is sent with each pose) and running no guarded approach (``approach_speed`` 0).
+The controller's own compensation does not matter:
 the raw sensor reading is used.
 """
 
