@@ -178,8 +178,10 @@ class Recorder(Node):
         self._reader = Node("_recorder_reader", context=self.context, use_global_arguments=False,
                             start_parameter_services=False, enable_rosout=False)
         self._takers: list[tuple[Any, type, int]] = []
-        #: Per taker: last publication sequence number seen, messages missed (gaps).
+        #: Per taker: last publication sequence number seen (0: not tracking), and
+        #: whether the topic had one publisher at the end of the last take.
         self._last_sequence: list[int] = []
+        self._was_single: list[bool] = []
         self.missed: dict[str, int] = {}
         self._pending: list[tuple[int, int, bytes]] = []
         self._recorded: dict[str, Any] = {}
@@ -252,6 +254,7 @@ class Recorder(Node):
         self._recorded[name] = subscription
         self._takers.append((subscription, msg_class, channel))
         self._last_sequence.append(0)
+        self._was_single.append(False)
         if self._ready:
             self.get_logger().info(f"now recording {name}")
 
@@ -270,8 +273,12 @@ class Recorder(Node):
         for i, (subscription, msg_class, channel) in enumerate(self._takers):
             handle = subscription.handle
             take = handle.take_message
-            # Sequence numbers count per publisher: gaps mean something only with one.
-            last = self._last_sequence[i] if subscription.get_publisher_count() == 1 else -1
+            # Sequence numbers count per publisher, and a message does not say whose it
+            # is: gaps mean something only while the topic has had one publisher since
+            # the last take and until after this one (a second publisher's messages can
+            # still be queued just after it left, or arrive just after it matched).
+            single = subscription.get_publisher_count() == 1
+            last = self._last_sequence[i] if single and self._was_single[i] else -1
             missed = 0
             with handle:
                 while (taken := take(msg_class, True)) is not None:
@@ -283,8 +290,10 @@ class Recorder(Node):
                         if sequence > last + 1 and last:
                             missed += sequence - last - 1
                         last = sequence
-            self._last_sequence[i] = max(last, 0)
-            if missed:
+            single = single and subscription.get_publisher_count() == 1
+            self._was_single[i] = single
+            self._last_sequence[i] = max(last, 0) if single else 0
+            if missed and single:
                 name = self.writer.topic_name(channel)
                 self.missed[name] = self.missed.get(name, 0) + missed
         taken_count = len(batch) - taken_count
