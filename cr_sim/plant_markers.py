@@ -9,6 +9,7 @@ the tip as an arrow of :data:`FORCE_SCALE` m per N (``contact_force``).
 
 from __future__ import annotations
 
+import numpy as np
 from rclpy.node import Node
 from visualization_msgs.msg import Marker
 
@@ -17,13 +18,14 @@ from cr_control.nodes.markers import (
     BLUE,
     GREEN,
     GREY,
+    ORIGIN,
     RED,
     MarkerPublisher,
     Trail,
     arrow,
     line_strip,
-    point,
     solid,
+    xyz,
 )
 from cr_sim.scene import Shape, scene_of
 
@@ -61,24 +63,23 @@ class PlantMarkers:
         scene = self.scene
         self.fixed = ([shape_marker("surface", frame, s, GREY, i) for i, s in enumerate(scene.shapes)]
                       if scene is not None else [])
+        # the fixed shapes' numbers, kept: their markers hold sentinels once serialized
+        self.fixed_values = ([_values(s) for s in scene.shapes] if scene is not None else [])
         self.trail = Trail("tip_path", frame, 0.004, GREEN)
-        # Made once, refilled per publish (a Marker costs ~50 us to construct).
+        # Made once; their numbers go in at each publish (cr_control.nodes.markers.MarkerBytes).
         self.links = line_strip("links", frame, [], 0.012, BLUE)
         self.force = arrow("contact_force", frame, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), RED)
         self.no_force = Marker(ns="contact_force", id=0, action=Marker.DELETE)
         self.no_force.header.frame_id = frame
         self._moving: list[Marker] = []
+        self._moving_kinds: list[str] = []
 
     def _moving_markers(self, shapes: list[Shape]) -> list[Marker]:
-        """The moving shapes' markers, made at the first publish and refilled after."""
-        if len(self._moving) != len(shapes):
+        """The moving shapes' markers, made at the first publish (or when they change kind)."""
+        kinds = [s.kind for s in shapes]
+        if kinds != self._moving_kinds:
             self._moving = [shape_marker("object", self.frame, s, GREY, i) for i, s in enumerate(shapes)]
-            return self._moving
-        for m, s in zip(self._moving, shapes, strict=True):
-            if s.kind == "line":
-                m.points = [point(p) for p in s.points]
-            else:
-                m.pose.position = point(s.centre)
+            self._moving_kinds = kinds
         return self._moving
 
     def tick(self, t: float, sec: int, nanosec: int) -> None:
@@ -89,16 +90,39 @@ class PlantMarkers:
         scene = self.scene
         scene.update()
         tip = scene.tip()
-        self.links.points = [point(p) for p in scene.links()]
-        markers = [*self.fixed] if self.pub.published % SURFACE_EVERY == 0 else []
+        markers, positions, points = [], [], []
+        if self.pub.published % SURFACE_EVERY == 0:
+            markers += self.fixed
+            for position, pts in self.fixed_values:
+                positions.append(position)
+                points.append(pts)
         markers.append(self.links)
-        markers += self._moving_markers(scene.moving_shapes())
+        positions.append(ORIGIN)
+        points.append(xyz(scene.links()))
+        shapes = scene.moving_shapes()
+        markers += self._moving_markers(shapes)
+        for s in shapes:
+            position, pts = _values(s)
+            positions.append(position)
+            points.append(pts)
         if tip is not None:
-            markers.append(self.trail.add(tip))
+            markers.append(self.trail.marker)
+            positions.append(ORIGIN)
+            points.append(self.trail.add(tip))
             f = scene.force()
+            positions.append(ORIGIN)
             if float(f @ f) > FORCE_MIN_N ** 2:
-                self.force.points = [point(tip), point(tip + FORCE_SCALE * f)]
                 markers.append(self.force)
+                points.append(xyz([tip, tip + FORCE_SCALE * f]))
             else:
                 markers.append(self.no_force)
-        self.pub.send(markers, sec, nanosec)
+                points.append(None)
+        self.pub.send(markers, positions, points, sec, nanosec)
+
+
+def _values(shape: Shape) -> tuple[tuple[float, ...], np.ndarray | None]:
+    """A shape marker's position and points (a line: its points; a solid: its centre)."""
+    if shape.kind == "line":
+        return ORIGIN, xyz(shape.points)
+    c = xyz([shape.centre])[0]
+    return (float(c[0]), float(c[1]), float(c[2])), None

@@ -10,12 +10,58 @@ from robot_data import needs_erd
 from ros_probe import next_domain
 
 from cr_control.core import topics
-from cr_control.nodes.markers import TRAIL_POINTS
+from cr_control.nodes.markers import (
+    BLUE,
+    GREEN,
+    RED,
+    TRAIL_POINTS,
+    MarkerBytes,
+    Trail,
+    arrow,
+    line_strip,
+    solid,
+)
 from cr_sim.plant_markers import SURFACE_EVERY
 from cr_sim.plants.registry import make_plant
 from cr_sim.scene import scene_of
 
 LOCKSTEP_S = 3.0
+
+
+def test_marker_bytes_equal_rclpy_serialization():
+    """The bytes :class:`MarkerBytes` fills read back as the markers rclpy serializes
+    (stamps, positions and points refilled twice, a negative second included), and a trail
+    is its first point repeated until full, then the last TRAIL_POINTS points."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from cr_control.nodes.markers import point
+
+    def build():
+        return [line_strip("links", "base", [], 0.01, BLUE), solid("s", Marker.SPHERE, "base",
+                (0, 0, 0), (0.02,) * 3, GREEN), arrow("f", "base", (0, 0, 0), (0, 0, 0), RED)]
+
+    rng = np.random.default_rng(3)
+    layout = MarkerBytes(build(), [4, 0, 2])
+    for sec, nanosec in ((12, 345_678_901), (-3, 999_999_999)):
+        links, centre, ends = rng.normal(size=(4, 3)), rng.normal(size=3), rng.normal(size=(2, 3))
+        values = np.concatenate([np.zeros(3), links.ravel(), centre, np.zeros(3), ends.ravel()])
+        data = layout.fill(values, sec, nanosec)
+        expected = build()
+        expected[0].points = [point(p) for p in links]
+        expected[1].pose.position = point(centre)
+        expected[2].points = [point(p) for p in ends]
+        for m in expected:
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
+        # equal field by field (padding bytes may differ: they carry anything)
+        reference = serialize_message(MarkerArray(markers=expected))
+        assert len(data) == len(reference)
+        assert deserialize_message(data, MarkerArray) == deserialize_message(reference, MarkerArray)
+    trail = Trail("t", "base", 0.01, GREEN, size=3)
+    assert trail.add((1.0, 2.0)).tolist() == [[1.0, 2.0, 0.0]] * 3
+    trail.add((3.0, 4.0, 5.0))
+    assert trail.add((6.0, 7.0, 8.0)).tolist() == [[1.0, 2.0, 0.0], [3.0, 4.0, 5.0], [6.0, 7.0, 8.0]]
+    assert trail.add((9.0, 9.0, 9.0)).tolist() == [[3.0, 4.0, 5.0], [6.0, 7.0, 8.0], [9.0, 9.0, 9.0]]
 
 
 @pytest.mark.parametrize(("scenario", "surface", "moving"), [
@@ -106,7 +152,7 @@ def test_markers_published_at_30_hz_in_a_lockstep_session_and_recorded(tmp_path)
     assert surfaces == list(range(0, len(got[plant_topic]), SURFACE_EVERY)), surfaces
     assert {m.ns for m in got[ctrl_topic][-1].markers} == {"desired_path", "desired"}
     trail = next(m for m in got[plant_topic][-1].markers if m.ns == "tip_path")
-    assert len(trail.points) == min(len(got[plant_topic]), TRAIL_POINTS)
+    assert len(trail.points) == TRAIL_POINTS
     names = {s.name for m in got[topics.DIAGNOSTICS] for s in m.status}
     assert names == {"plant: loop", "adaptive_impedance: control loop"}, names
 
