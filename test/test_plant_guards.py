@@ -245,6 +245,43 @@ def test_sender_aware_subscription_reports_each_publishers_gid(executor):
         probe.close()
 
 
+def test_one_wake_up_takes_what_is_queued():
+    """A flood (issue 25's 50 000 states from a second publisher) costs one take per message,
+    not one executor wake-up: take_data() takes every queued message, up to its bound."""
+    from rclpy.duration import Duration
+
+    probe = RosProbe(int(os.environ["ROS_DOMAIN_ID"]), "guards_flood")
+    context = Context()
+    rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    node = rclpy.create_node("guards_drain", context=context)
+    got = []
+    sub = sender_aware.subscribe(node, JointState, "/guards_flood", lambda *a: got.append(a),
+                                 PUBLISH_QOS, 1000)
+    try:
+        pub = probe.node.create_publisher(JointState, "/guards_flood", PUBLISH_QOS)
+        deadline = time.monotonic() + 20.0
+        while sub.get_publisher_count() != 1 or pub.get_subscription_count() != 1:
+            assert time.monotonic() < deadline, "no match"
+            time.sleep(0.02)
+        for k in range(8):
+            pub.publish(JointState(name=["a"], effort=[float(k)]))
+        assert pub.wait_for_all_acked(Duration(seconds=10))     # all 8 in the reader's history
+        sub.take_data()
+        assert [list(deserialize_message(d, JointState).effort) for d, _ in got] == \
+            [[float(k)] for k in range(8)]
+        for _ in range(sender_aware.MAX_TAKES_PER_WAKE + 5):
+            pub.publish(JointState(name=["a"], effort=[1.0]))
+        assert pub.wait_for_all_acked(Duration(seconds=10))
+        got.clear()
+        sub.take_data()
+        assert len(got) == min(sender_aware.MAX_TAKES_PER_WAKE, PUBLISH_QOS.depth)
+    finally:
+        sub.destroy()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        probe.close()
+
+
 def test_the_plant_refuses_a_second_publisher_over_ros(make_node):
     """The plant's own subscription: the first publisher's valid command makes it the
     commander; a second publisher's commands are refused and counted, its oversized one too."""
