@@ -320,6 +320,22 @@ def test_states_from_a_second_publisher_are_ignored_until_the_first_falls_silent
     assert status(node)["states_foreign"] == 100 and status(node)["source_handovers"] == 1
 
 
+def test_a_node_behind_its_plant_answers_only_the_newest_state(node):
+    """Real time: states taken in one wake-up with a newer one of the same sender behind
+    them are skipped (the plant holds a command for its latest state only); the newest is
+    answered, and its law step spans the skipped ones."""
+    node._on_joint_state(state(0), GID_A)
+    assert len(node.published) == 1 and node._state_sub is not None
+    node._state_sub.newer_queued = True                       # as take_data() sets it
+    for k in (1, 2, 3):
+        node._on_joint_state(state(k), GID_A)
+    node._state_sub.newer_queued = False
+    assert node.states_skipped == 3 and len(node.published) == 1
+    node._on_joint_state(state(4), GID_A)
+    command = deserialize_message(node.published[-1], JointState)
+    assert len(node.published) == 2 and command.header.stamp.nanosec == 4_000_000
+
+
 def test_a_wrench_beyond_max_sensor_force_is_a_sensor_fault(node, monkeypatch):
     warned = []
     monkeypatch.setattr(node.get_logger(), "warn", lambda msg, **_: warned.append(msg))

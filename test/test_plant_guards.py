@@ -302,6 +302,9 @@ def test_the_plant_refuses_a_second_publisher_over_ros(make_node):
 
         assert spin_until(lambda: node.command_sub.get_publisher_count() == 2
                           and controller.get_subscription_count() == rogue.get_subscription_count() == 1)
+        # the publishers' node names reach the graph after their endpoints (ROS discovery info)
+        assert spin_until(lambda: [i.node_name for i in node.get_publishers_info_by_topic(
+            topics.JOINT_COMMANDS)] == ["guards_rogue"] * 2)
         controller.publish(JointState(name=list(node.command_names), effort=[1.0, -1.0]))
         assert spin_until(lambda: node._commander is not None)
         for k in range(10):          # one at a time: the subscription keeps the last 10

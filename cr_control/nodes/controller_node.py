@@ -39,6 +39,11 @@ Guards (issue 25; counted in the status, :data:`cr_control.core.topics.NODE_STAT
   (``states_foreign``, one warning) until the followed one has been silent for
   SOURCE_SILENCE_S (a restarted plant, a switched driver): the next publisher is then
   followed (``source_handovers``, one info line).
+- Newest state first (real time): a node that fell behind (several of its plant's states
+  taken in one wake-up) answers only the newest, as the plant holds a command for its
+  latest state only; the older are skipped (``states_skipped`` on the node, a rate-limited
+  warning) and the law's next step is longer (its integration step is clamped after gaps).
+  Lockstep answers every state.
 - Size: a JointState longer than a 64-joint one (``raw_messages.joint_state_max_bytes``),
   or of another length than the last state and saying it has more than 64 names, and a
   wrench or plant sensor message beyond its bound, is dropped unread (``inputs_oversized``).
@@ -163,7 +168,7 @@ class ControllerNode(LifecycleNode):
         self.activations = 0
         self._held_state: tuple[bytes, bytes | None] | None = None  # the last one seen inactive
         # Guards (module docstring): counts, the followed publisher, size bounds.
-        self.states_foreign = self.source_handovers = self.inputs_oversized = 0
+        self.states_foreign = self.source_handovers = self.inputs_oversized = self.states_skipped = 0
         self.sensor_faults = 0
         self.source: bytes | None = None      # GID of the /joint_states publisher followed
         self._source_seen = -np.inf           # perf_counter of its last message
@@ -569,6 +574,15 @@ class ControllerNode(LifecycleNode):
         if stamp == self._last_stamp and self._answered:
             if self.controller.commanding:
                 self.command_pub.publish(self._command_bytes)  # a repeated state: same answer
+            return
+        if self._pacer is None and getattr(self._state_sub, "newer_queued", False):
+            # real time, fallen behind: a newer state of this plant is queued behind this
+            # one, and the plant holds a command only for its latest state
+            self.states_skipped += 1
+            self._log_limited("skipped", "warn", (
+                f"fell behind the plant: {self.states_skipped} states so far answered only by "
+                "the newest one queued behind them (each skipped state lengthens the law's "
+                "next step)"))
             return
         self._last_stamp = stamp
         position, velocity = self._joint_arrays(state)

@@ -132,6 +132,8 @@ class SenderAwareSubscription(Waitable):
             _Gid.data.offset
         self._identifier = get_rmw_implementation_identifier().encode()
         self._index: int | None = None
+        #: True during a callback whose message has a newer one of the same sender behind it.
+        self.newer_queued = False
         self._node = node
         self.destroyed = False
 
@@ -145,22 +147,34 @@ class SenderAwareSubscription(Waitable):
         with self.handle:
             return self.handle.get_publisher_count()
 
-    def take(self) -> bool:
-        """Take one message and hand it to the callback; False if there was none."""
+    def _take_one(self) -> tuple[bytes | None, bytes, int] | None:
+        """The next queued message: (bytes or None if longer than max_bytes, GID, length)."""
         with self.handle:
             ret = self._take(self.handle.pointer, self._message_ref, self._info_ref, None)
         if ret != RCL_RET_OK:
-            return False
+            return None
         info, message = self._info, self._message
         if info.publisher_gid.implementation_identifier != self._identifier:
             raise RuntimeError("rmw_message_info_t layout differs from rmw/types.h (Jazzy): "
                                "the publisher GID cannot be read")
         gid = ctypes.string_at(self._gid_address, GID_SIZE)
         length = message.buffer_length
-        if length > self.max_bytes:
+        data = None if length > self.max_bytes else ctypes.string_at(message.buffer, length)
+        return data, gid, length
+
+    def _dispatch(self, data: bytes | None, gid: bytes, length: int) -> None:
+        if data is None:
             self.callback(None, gid, length)
         else:
-            self.callback(ctypes.string_at(message.buffer, length), gid)
+            self.callback(data, gid)
+
+    def take(self) -> bool:
+        """Take one message and hand it to the callback; False if there was none."""
+        taken = self._take_one()
+        if taken is None:
+            return False
+        self.newer_queued = False
+        self._dispatch(*taken)
         return True
 
     # -- Waitable ----------------------------------------------------------------------
@@ -168,11 +182,22 @@ class SenderAwareSubscription(Waitable):
         return self._index is not None and wait_set.is_ready("subscription", self._index)
 
     def take_data(self):
-        """Take what is queued (at most MAX_TAKES_PER_WAKE), on the executor's thread: a
-        flood from a second publisher costs one take each, not one executor wake-up each."""
+        """Take what is queued (at most MAX_TAKES_PER_WAKE), on the executor's thread, then
+        hand each message to the callback in order: a flood from a second publisher costs
+        one take each, not one executor wake-up each. During each callback
+        :attr:`newer_queued` says whether a later message of the same sender was taken with
+        it (a controller that fell behind answers only the newest state)."""
+        batch = []
         for _ in range(MAX_TAKES_PER_WAKE):
-            if not self.take():
+            taken = self._take_one()
+            if taken is None:
                 break
+            batch.append(taken)
+        last = {gid: i for i, (_, gid, _) in enumerate(batch)}
+        for i, taken in enumerate(batch):
+            self.newer_queued = last[taken[1]] > i
+            self._dispatch(*taken)
+        self.newer_queued = False
         return None
 
     async def execute(self, taken_data) -> None:
