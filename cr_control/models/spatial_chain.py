@@ -93,6 +93,23 @@ _UNALIGNED = {"JointModelRevoluteUnaligned": REVOLUTE_KIND,
 
 # -- building blocks -----------------------------------------------------------------------------
 @njit(cache=True, error_model="numpy")
+def rotate_about_axis_into(src, dst, ax, ay, az, angle):
+    """dst[0:9] = src[0:9] Rot(a, angle): a row-major 3x3 rotation times the rotation by
+    ``angle`` (rad) about the unit axis a = (ax, ay, az), by Rodrigues' formula
+    Rot = c I + s [a]x + (1 - c) a a^T. ``dst`` may be ``src``."""
+    c, s = math.cos(angle), math.sin(angle)
+    t = 1.0 - c
+    e00, e01, e02 = c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay
+    e10, e11, e12 = t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax
+    e20, e21, e22 = t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az
+    for r in range(3):
+        a0, a1, a2 = src[3 * r], src[3 * r + 1], src[3 * r + 2]
+        dst[3 * r] = a0 * e00 + a1 * e10 + a2 * e20
+        dst[3 * r + 1] = a0 * e01 + a1 * e11 + a2 * e21
+        dst[3 * r + 2] = a0 * e02 + a1 * e12 + a2 * e22
+
+
+@njit(cache=True, error_model="numpy")
 def _compose(Ra, pa, Rb, pb, R, p):
     """R = Ra Rb, p = pa + Ra pb (rotations flat, row-major; R, p must not alias Ra, pa)."""
     for r in range(3):
@@ -163,16 +180,7 @@ def geometry_into(chain, q, geo, pose):
             row[12] = row[13] = row[14] = 0.0
             row[15], row[16], row[17] = zx, zy, zz
         else:
-            c, s = math.cos(q[i]), math.sin(q[i])
-            t = 1.0 - c
-            e00, e01, e02 = c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay
-            e10, e11, e12 = t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax
-            e20, e21, e22 = t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az
-            for r in range(3):
-                a0, a1, a2 = row[3 * r], row[3 * r + 1], row[3 * r + 2]
-                row[3 * r] = a0 * e00 + a1 * e10 + a2 * e20
-                row[3 * r + 1] = a0 * e01 + a1 * e11 + a2 * e21
-                row[3 * r + 2] = a0 * e02 + a1 * e12 + a2 * e22
+            rotate_about_axis_into(row, row, ax, ay, az, q[i])
             px, py, pz = row[9], row[10], row[11]
             row[12], row[13], row[14] = zx, zy, zz
             row[15], row[16], row[17] = py * zz - pz * zy, pz * zx - px * zz, px * zy - py * zx

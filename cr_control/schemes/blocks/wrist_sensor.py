@@ -75,6 +75,7 @@ from cr_control.models.spatial_chain import (
     POS,
     PRISMATIC_KIND,
     ROT,
+    rotate_about_axis_into,
 )
 
 #: Averaging window of a zeroing (s).
@@ -202,16 +203,7 @@ def com_velocity(chain, p_nc, q, v):
             R[:] = b
         else:
             prismatic[i] = 0.0
-            c, s = math.cos(q[i]), math.sin(q[i])
-            t = 1.0 - c
-            e00, e01, e02 = c + t * ax * ax, t * ax * ay - s * az, t * ax * az + s * ay
-            e10, e11, e12 = t * ax * ay + s * az, c + t * ay * ay, t * ay * az - s * ax
-            e20, e21, e22 = t * ax * az - s * ay, t * ay * az + s * ax, c + t * az * az
-            for r in range(3):
-                b0, b1, b2 = b[3 * r], b[3 * r + 1], b[3 * r + 2]
-                R[3 * r] = b0 * e00 + b1 * e10 + b2 * e20
-                R[3 * r + 1] = b0 * e01 + b1 * e11 + b2 * e21
-                R[3 * r + 2] = b0 * e02 + b1 * e12 + b2 * e22
+            rotate_about_axis_into(b, R, ax, ay, az, q[i])
         p[0], p[1], p[2] = p0, p1, p2
         ps[i, 0], ps[i, 1], ps[i, 2] = p0, p1, p2
     cx = p[0] + R[0] * p_nc[0] + R[1] * p_nc[1] + R[2] * p_nc[2]
