@@ -39,7 +39,7 @@ demo: $(STAMP) $(if $(ROBOT),$(ROBOTS_STAMP))
 test: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m cr_control.tools.warm_up
-	$(BIN)/python -m pytest -q test
+	$(BIN)/python -m pytest -q --durations=30 test
 
 ## Real-time figures and issue 6's targets (PASS/FAIL): sessions across processes, composed and
 ## with the recorder vs a bare rclpy echo pair, the recorder's CPU per message, lockstep and
