@@ -202,17 +202,24 @@ def test_an_oversized_command_is_refused_unread_and_counted(make_node):
 
 
 # -- over ROS: the GIDs rmw reports ----------------------------------------------------------
+def _probe_and_subscriber(probe_name: str, topic: str):
+    """A probe (publishers' participant) and, in a context of its own, a node with a
+    sender-aware JointState subscription on ``topic`` that appends each callback's
+    arguments to ``got``: (probe, context, node, subscription, got)."""
+    probe = RosProbe(int(os.environ["ROS_DOMAIN_ID"]), probe_name)
+    context = Context()
+    rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+    node = rclpy.create_node(f"{probe_name}_sub", context=context)
+    got: list = []
+    sub = sender_aware.subscribe(node, JointState, topic, lambda *a: got.append(a), PUBLISH_QOS, 1000)
+    return probe, context, node, sub, got
+
+
 @pytest.mark.parametrize("executor", [EventsExecutor, SingleThreadedExecutor])
 def test_sender_aware_subscription_reports_each_publishers_gid(executor):
     """Two publishers of another participant: each message comes with its publisher's GID
     (the graph's endpoint GID), an oversized one with its length only."""
-    probe = RosProbe(int(os.environ["ROS_DOMAIN_ID"]), "guards_probe")
-    context = Context()
-    rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
-    node = rclpy.create_node("guards_sub", context=context)
-    got = []
-    sub = sender_aware.subscribe(node, JointState, "/guards_test", lambda *a: got.append(a),
-                                 PUBLISH_QOS, 1000)
+    probe, context, node, sub, got = _probe_and_subscriber("guards_probe", "/guards_test")
     spin = executor(context=context)
     spin.add_node(node)
     try:
@@ -250,13 +257,7 @@ def test_one_wake_up_takes_what_is_queued():
     not one executor wake-up: take_data() takes every queued message, up to its bound."""
     from rclpy.duration import Duration
 
-    probe = RosProbe(int(os.environ["ROS_DOMAIN_ID"]), "guards_flood")
-    context = Context()
-    rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
-    node = rclpy.create_node("guards_drain", context=context)
-    got = []
-    sub = sender_aware.subscribe(node, JointState, "/guards_flood", lambda *a: got.append(a),
-                                 PUBLISH_QOS, 1000)
+    probe, context, node, sub, got = _probe_and_subscriber("guards_flood", "/guards_flood")
     try:
         pub = probe.node.create_publisher(JointState, "/guards_flood", PUBLISH_QOS)
         deadline = time.monotonic() + 20.0
