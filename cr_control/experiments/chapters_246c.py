@@ -168,18 +168,27 @@ def _finite(x: Any) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
+def _json_value(x: Any) -> Any:
+    if isinstance(x, float) and not math.isfinite(x):
+        return "n/a" if math.isnan(x) else ("inf" if x > 0 else "-inf")
+    return x
+
+
 def _ok(r: dict[str, Any]) -> bool:
     return r["status"] == "ok"
 
 
-def claims(results: dict[str, SweepResult], claim: Claim) -> None:
-    """The claims of chapters 2, 4, 6 and appendix C, through ``claim`` (reproduce's)."""
+def claims(results: dict[str, SweepResult], add: Claim) -> None:
+    """The claims of chapters 2, 4, 6 and appendix C, through ``add`` (reproduce's claim())."""
     from cr_control.experiments.reproduce import row
 
-    _chapter2(results, claim, row)
-    _chapter4(results, claim, row)
-    _appendix_c(results, claim, row)
-    _chapter6(results, claim, row)
+    def strict(chapter: str, text: str, measured: dict[str, Any], *rest: Any) -> None:
+        # claims.json is strict JSON: a figure that does not exist (NaN: never settled,
+        # never held) is written "n/a", an infinite one "inf"
+        add(chapter, text, {k: _json_value(v) for k, v in measured.items()}, *rest)
+
+    for chapter in (_chapter2, _chapter4, _appendix_c, _chapter6):
+        chapter(results, strict, row)
 
 
 def _chapter2(results: dict[str, SweepResult], claim: Claim, row: Callable) -> None:
