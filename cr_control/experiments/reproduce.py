@@ -218,7 +218,7 @@ def main(argv: Iterable[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cr_reproduce", description="Run the thesis studies "
                                      "on Ray; write report.html and claims.json.")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
-    parser.add_argument("--quick", action="store_true", help="coarser maps, shorter ch. 5 runs")
+    parser.add_argument("--quick", action="store_true", help="coarser maps, shorter ch. 4, 5 and C runs")
     parser.add_argument("--address", metavar="HOST:PORT", help="join this Ray cluster")
     args = parser.parse_args(None if argv is None else list(argv))
     mode = "quick" if args.quick else "full"
