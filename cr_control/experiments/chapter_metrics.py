@@ -13,8 +13,11 @@ and the claims of :mod:`cr_control.experiments.chapters_246c` are computed from 
   the network scheme ``{M1,C1,G1}_norm_rel_err_{early,late}`` (RMS of |X| - |X_hat| over RMS
   |X|, early = [1, 5) s, late = the last quarter);
 - chapter 4 (``backstepping_force``, ``mrac_force``): :func:`chapter4.force_metrics`
-  (``settling_s``, ``ss_error_N``, ``chatter_m``, ``no_contact_s``... over the last 10 s) and,
-  for the MRAC, ``model_err_max_tail_N`` = max |f - f_m| over the last 10 s;
+  (``settling_s``, ``ss_error_N``, ``chatter_m``, ``no_contact_s``... over the last 10 s), the
+  estimates' ``estimates_drift_tail_rel`` (largest peak-to-peak of an estimate over the last
+  10 s relative to its final value) and ``estimates_err_end_rel`` (|theta_hat - theta| / |theta|
+  at the end, over the estimates with a true value) and, for the MRAC,
+  ``model_err_max_tail_N`` = max |f - f_m| over the last 10 s;
 - appendix C (``cmmsd_backstepping``): :func:`chapter4.chain_metrics` (``q1_max_tail_m``,
   ``u_peak_N``, ``q_max_m``...) and ``q1_initial_m``;
 - chapter 6 (``fjr_*``): ``e_q_rms_first_s_rad``, ``e_q_rms_late_rad``, ``e_q_max_late_rad``,
@@ -91,6 +94,14 @@ def chapter4(run: Any, plant: dict[str, Any], controller: dict[str, Any]) -> dic
 
     r = ch4.force_from_offline(run, "run", plant, controller)
     out = {k: float(v) for k, v in ch4.force_metrics(r).items()}
+    names = [n for n in r.estimates if n in r.true]
+    if names:
+        tail = r.time >= r.time[-1] - ch4.TAIL_S
+        end = np.array([r.estimates[n][-1] for n in names])
+        truth = np.array([r.true[n] for n in names])
+        drift = [np.ptp(r.estimates[n][tail]) / max(abs(r.estimates[n][-1]), 1e-9) for n in names]
+        out["estimates_drift_tail_rel"] = _reduce(np.max, np.array(drift))
+        out["estimates_err_end_rel"] = float(np.linalg.norm(end - truth) / np.linalg.norm(truth))
     if r.f_m is not None:
         tail = r.time >= r.time[-1] - ch4.TAIL_S
         out["model_err_max_tail_N"] = _reduce(np.max, np.abs(r.f - r.f_m)[tail])
