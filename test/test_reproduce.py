@@ -75,8 +75,9 @@ def test_report_is_self_contained(tmp_path):
     page = reproduce.report(tmp_path, "quick", results, items, reproduce.studies("quick"), 1.0)
     text = page.read_text()
     assert text.count("data:image/png;base64,") == len(results) and "src=\"http" not in text
-    for chapter in ("2", "3", "4", "5", "6", "C"):
+    for chapter in ("2", "3", "4", "5", "6"):
         assert f"<h2>Chapter {chapter}</h2>" in text
+    assert "<h2>Appendix C</h2>" in text
     assert "r_2, r_1, r_0 of the MRAC (4.72) corrected" in text   # a claim's correction
     assert "3.48 prints" in text                         # the defects, from docs/thesis.md
 

@@ -191,7 +191,8 @@ def report(out: Path, mode: str, results: dict[str, SweepResult], items: list[di
              f"<p>{sum(len(r.rows) for r in results.values())} offline runs on Ray in "
              f"{seconds:.0f} s. Verdicts are computed by the rule in each row.</p>"]
     for chapter in sorted({s.chapter for s in all_studies}):
-        parts.append(f"<h2>Chapter {chapter}</h2><table border=1 cellpadding=4>"
+        parts.append(f"<h2>{'Appendix' if chapter == 'C' else 'Chapter'} {chapter}</h2>"
+                     "<table border=1 cellpadding=4>"
                      "<tr><th>claim</th><th>measured</th><th>rule</th><th>verdict</th></tr>")
         for c in (c for c in items if c["chapter"] == chapter):
             measured = "<br>".join(f"{k} = {_format(v)}" for k, v in c["measured"].items())
