@@ -22,6 +22,7 @@ A README command no runner knows fails :func:`test_every_readme_command_has_a_ru
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 import signal
@@ -168,6 +169,14 @@ def experiments(readme: Readme, command: str) -> None:
     args[i + 1] = str(readme.tmp / args[i + 1])
     proc = readme.run(args, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    if "cr_reproduce" in command:
+        # the quick run's claims: every chapter, each with numbers and a computed verdict
+        # (test_reproduce.py checks that the verdicts follow the rules)
+        claims = json.loads((Path(args[i + 1]) / "claims.json").read_text())
+        assert {c["chapter"] for c in claims} == {"2", "3", "4", "5", "6", "C"}
+        for c in claims:
+            assert c["verdict"] in ("reproduced", "not reproduced", "reproduced with correction")
+            assert any(isinstance(v, (int, float)) for v in c["measured"].values()), c["claim"]
 
 
 def identify(readme: Readme, command: str) -> None:

@@ -4,7 +4,8 @@ The run is :func:`cr_control.tools.offline.run` (bit-for-bit deterministic) of t
 plant :func:`cr_control.tools.offline.build_scheme` makes; its columns are handed to
 :func:`cr_control.analysis.analyze.metrics` as a session would be, so every metric has the
 name and the definition of ``cr_analyze``'s (e.g. ``pos_err_rms_last_half_m``); a thesis plant's
-run also gets the robot sessions' ``contact_lost_s`` (time with no contact force, |f| as the
+run also gets its chapter's own figures (:mod:`.chapter_metrics`: chapters 2, 4, 6 and
+appendix C) and the robot sessions' ``contact_lost_s`` (time with no contact force, |f| as the
 normal force, after the first CONTACT_GRACE_S) and ``command_at_limit_s`` (time some command
 sat at its clip: max_effort or the URDF effort). Left out:
 figures of the wall clock (``compute_time_*``: they differ from run to run) and of a
@@ -26,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from cr_control.analysis import analyze, chapter5, robot
+from cr_control.experiments import chapter_metrics
 from cr_control.tools import offline
 
 #: Metrics of a recording's bookkeeping or of the wall clock: not figures of a point.
@@ -63,14 +65,20 @@ def chapter5_metrics(run: offline.OfflineRun, scheme: str, controller_values: di
     """``cr_analyze``'s chapter 5 figures (:func:`cr_control.analysis.chapter5.contact_metrics`:
     separation time, force after the disturbance...), those whose names the generic metrics
     do not already use."""
+    values = chapter5.contact_metrics(chapter5.from_offline(run, scheme, controller_values,
+                                                            plant_values(scheme, plant_overrides)))
+    return {k: float(v) for k, v in values.items() if k not in ("pos_err_rms_m",)}
+
+
+def plant_values(scheme: str, plant_overrides: dict[str, Any]) -> dict[str, Any]:
+    """The thesis plant's parameter values of an offline run of ``scheme``: the scenario's
+    defaults, the registry's thesis settings, then ``plant_overrides``."""
     from cr_control.schemes.registry import default_scenario
     from cr_sim.plants.registry import SCENARIOS
 
-    plant_values = {p.name: p.default for p in SCENARIOS[default_scenario(scheme)][0]}
-    plant_values.update(offline.scheme_plant_overrides(scheme, plant_overrides))
-    values = chapter5.contact_metrics(chapter5.from_offline(run, scheme, controller_values,
-                                                            plant_values))
-    return {k: float(v) for k, v in values.items() if k not in ("pos_err_rms_m",)}
+    values = {p.name: p.default for p in SCENARIOS[default_scenario(scheme)][0]}
+    values.update(offline.scheme_plant_overrides(scheme, plant_overrides))
+    return values
 
 
 def at_limit_seconds(run: offline.OfflineRun, controller: Any, plant_joints: list[str]) -> float:
@@ -119,6 +127,9 @@ def run_point(scheme: str, robot: str | None, duration: float, controller_overri
             values["command_at_limit_s"] = at_limit_seconds(run, controller, names)
             if robot is None and chapter5.is_chapter5(run.status_fields):
                 values.update(chapter5_metrics(run, scheme, controller.values, plant_overrides))
+            if robot is None:
+                values.update(chapter_metrics.chapter_metrics(
+                    run, scheme, plant_values(scheme, plant_overrides), controller.values))
     except Exception as exc:                    # noqa: BLE001 - a point's failure is a result
         text = str(exc).splitlines()[0] if str(exc) else ""
         return {"status": "failed", "reason": f"{type(exc).__name__}: {text}"[:300]}

@@ -2,14 +2,17 @@
 verdicts, one self-contained HTML report.
 
 Covered so far: chapter 3 (the three impedance schemes on the compliant plane, with the
-robustness map: RMS error against K_e x0.1 ... x10 and, in the full run, link-mass error) and
+robustness map: RMS error against K_e x0.1 ... x10 and, in the full run, link-mass error),
 chapter 5 (fixed impedance and fuzzy unidirectional control, with the map of separation
-against disturbance size and duration). Chapters 2, 4, 6 and appendix C are not in it yet.
+against disturbance size and duration), and chapters 2, 4, 6 and appendix C
+(:mod:`.chapters_246c`: maps of settling and error against k_o, k_s and of the error
+against K_s for both chapter 6 schemes).
 
 Every study is a :func:`cr_control.experiments.sweep.sweep` (so resumable: DIR/runs/<study>/),
 every figure is the sweep's own, inlined as base64 PNG. ``claims.json``: one entry per claim,
 ``{"chapter", "claim", "measured", "rule", "verdict"}``; the verdict is computed from the
-measured numbers by the rule written next to it (reproduced / not reproduced), never typed.
+measured numbers by the rule written next to it (reproduced / not reproduced; "reproduced
+with correction" where the claim names the DESIGN.md correction its run needs), never typed.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cr_control.experiments import engine
+from cr_control.experiments import chapters_246c, engine
 from cr_control.experiments.spec import SpecError, parse_spec
 from cr_control.experiments.sweep import SweepResult, sweep
 
@@ -71,7 +74,7 @@ def studies(mode: str) -> list[Study]:
                                    "plant.disturbance_duration": CH5_DURATION[mode]},
                           "metrics": ["separated_s", "f_m_min_after_N", "f_err_rms_after_N",
                                       "pos_err_rms_after_m"]}))
-    return out
+    return out + chapters_246c.studies(mode)
 
 
 def row(result: SweepResult, **inputs: Any) -> dict[str, Any]:
@@ -88,9 +91,16 @@ def claims(results: dict[str, SweepResult]) -> list[dict[str, Any]]:
     out = []
 
     def claim(chapter: str, text: str, measured: dict[str, Any], rule: str,
-              holds: Callable[[], bool]) -> None:
-        out.append({"chapter": chapter, "claim": text, "measured": measured, "rule": rule,
-                    "verdict": "reproduced" if holds() else "not reproduced"})
+              holds: Callable[[], bool], correction: str = "") -> None:
+        """One claim; ``correction``: the DESIGN.md defect (equation numbers) the run
+        corrects, if any: the verdict is then "reproduced with correction" when it holds."""
+        verdict = ("reproduced with correction" if correction else "reproduced") if holds() \
+            else "not reproduced"
+        entry = {"chapter": chapter, "claim": text, "measured": measured, "rule": rule,
+                 "verdict": verdict}
+        if correction:
+            entry["correction"] = correction
+        out.append(entry)
 
     for scheme, section in CH3.items():
         result = results[f"ch3_{scheme}"]
@@ -138,6 +148,7 @@ def claims(results: dict[str, SweepResult]) -> list[dict[str, Any]]:
                                                 for r in results["ch5_impedance"].rows})},
           "the smallest 60 ms disturbance of the grid that separates is larger for fuzzy",
           lambda: b > a)
+    chapters_246c.claims(results, claim)
     return out
 
 
@@ -180,12 +191,15 @@ def report(out: Path, mode: str, results: dict[str, SweepResult], items: list[di
              f"<p>{sum(len(r.rows) for r in results.values())} offline runs on Ray in "
              f"{seconds:.0f} s. Verdicts are computed by the rule in each row.</p>"]
     for chapter in sorted({s.chapter for s in all_studies}):
-        parts.append(f"<h2>Chapter {chapter}</h2><table border=1 cellpadding=4>"
+        parts.append(f"<h2>{'Appendix' if chapter == 'C' else 'Chapter'} {chapter}</h2>"
+                     "<table border=1 cellpadding=4>"
                      "<tr><th>claim</th><th>measured</th><th>rule</th><th>verdict</th></tr>")
         for c in (c for c in items if c["chapter"] == chapter):
             measured = "<br>".join(f"{k} = {_format(v)}" for k, v in c["measured"].items())
             parts.append(f"<tr><td>{html.escape(c['claim'])}</td><td>{measured}</td>"
-                         f"<td>{html.escape(c['rule'])}</td><td><b>{c['verdict']}</b></td></tr>")
+                         f"<td>{html.escape(c['rule'])}</td><td><b>{c['verdict']}</b>"
+                         + (f"<br>{html.escape(c['correction'])}" if "correction" in c else "")
+                         + "</td></tr>")
         parts.append("</table>")
         for study in (s for s in all_studies if s.chapter == chapter):
             parts.append(f"<h3>{html.escape(study.title)}</h3>")
@@ -205,7 +219,7 @@ def main(argv: Iterable[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cr_reproduce", description="Run the thesis studies "
                                      "on Ray; write report.html and claims.json.")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
-    parser.add_argument("--quick", action="store_true", help="coarser maps, shorter ch. 5 runs")
+    parser.add_argument("--quick", action="store_true", help="coarser maps, shorter ch. 4, 5 and C runs")
     parser.add_argument("--address", metavar="HOST:PORT", help="join this Ray cluster")
     args = parser.parse_args(None if argv is None else list(argv))
     mode = "quick" if args.quick else "full"
