@@ -116,3 +116,21 @@ def test_results_md_claims_blocks_equal_the_quick_run(reproduce_quick):
     claims = rt.load(reproduce_quick / "claims.json")
     assert rt.differences(claims, RESULTS.read_text()) == []
     assert rt.main([str(reproduce_quick / "claims.json"), "--check", str(RESULTS)]) == 0
+
+
+def test_cr_reproduce_write_tables_leaves_an_agreeing_results_md_unchanged(reproduce_quick,
+                                                                          tmp_path):
+    """``cr_reproduce --quick --out DIR --write-tables FILE`` (resuming the session's quick
+    run: no point is computed again) rewrites FILE's blocks; docs/results.md agrees, so a
+    copy of it comes back byte for byte, and a copy with a block edited is repaired."""
+    import shutil
+
+    from cr_control.experiments import reproduce
+
+    shutil.copytree(reproduce_quick / "runs", tmp_path / "runs")
+    target = tmp_path / "results.md"
+    target.write_text(RESULTS.read_text().replace("| **reproduced** |", "| **typed** |", 1))
+    assert rt.differences(rt.load(reproduce_quick / "claims.json"), target.read_text())
+    assert reproduce.main(["--quick", "--out", str(tmp_path), "--write-tables",
+                           str(target)]) == 0
+    assert target.read_text() == RESULTS.read_text()
