@@ -39,3 +39,14 @@ def _test_domains():
 def ros_env() -> dict[str, str]:
     """Environment for subprocesses of one test: localhost discovery, a fresh domain id."""
     return isolated_env(domain_id=next_domain())
+
+
+@pytest.fixture(scope="session")
+def reproduce_quick(tmp_path_factory):
+    """DIR of one ``cr_reproduce --quick`` run (report.html, claims.json) for the session:
+    deterministic, so every test reading it sees the numbers CI and docs/results.md see."""
+    from cr_control.experiments import reproduce
+
+    out = tmp_path_factory.mktemp("reproduce_quick")
+    assert reproduce.main(["--quick", "--out", str(out)]) == 0
+    return out

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import re
 import shlex
+import shutil
 import signal
 import subprocess
 from collections.abc import Callable
@@ -58,8 +59,10 @@ def run_commands() -> list[str]:
 class Readme:
     """Runs README commands in one environment (domain id, temporary directories)."""
 
-    def __init__(self, env: dict[str, str], tmp: Path):
+    def __init__(self, env: dict[str, str], tmp: Path, quick_report: Path | None = None):
         self.env, self.tmp = env, tmp
+        #: DIR of the session's cr_reproduce --quick run (conftest.reproduce_quick)
+        self.quick_report = quick_report
         self.domain = env["ROS_DOMAIN_ID"]
         self.recordings: list[Path] = []
         self.daemons: list[subprocess.Popen] = []
@@ -167,6 +170,11 @@ def experiments(readme: Readme, command: str) -> None:
     args = [_short_spec(readme, a) if a.startswith("docs/examples/") else a for a in args]
     i = args.index("--out")
     args[i + 1] = str(readme.tmp / args[i + 1])
+    quick = "cr_reproduce" in args[0] and "--quick" in args and readme.quick_report
+    if quick:
+        # the session's quick run's points, which the command resumes from (the same SPECs):
+        # the command line is tested without computing the quick report twice in CI
+        shutil.copytree(readme.quick_report / "runs", Path(args[i + 1]) / "runs")
     proc = readme.run(args, timeout=600)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     if "cr_reproduce" in command:
@@ -177,6 +185,9 @@ def experiments(readme: Readme, command: str) -> None:
         for c in claims:
             assert c["verdict"] in ("reproduced", "not reproduced", "reproduced with correction")
             assert any(isinstance(v, (int, float)) for v in c["measured"].values()), c["claim"]
+    if quick:
+        assert (Path(args[i + 1]) / "claims.json").read_text() == \
+            (readme.quick_report / "claims.json").read_text()
 
 
 def identify(readme: Readme, command: str) -> None:
@@ -232,8 +243,8 @@ def _rank(command: str) -> int:
     return ORDER.index(program)
 
 
-def test_the_readme_commands_run(tmp_path, ros_env):
-    readme = Readme(ros_env, tmp_path)
+def test_the_readme_commands_run(tmp_path, ros_env, reproduce_quick):
+    readme = Readme(ros_env, tmp_path, reproduce_quick)
     commands = sorted(run_commands(), key=_rank)
     waited = False
     try:

@@ -3,7 +3,9 @@
 The run is :func:`cr_control.tools.offline.run` (bit-for-bit deterministic) of the scheme and
 plant :func:`cr_control.tools.offline.build_scheme` makes; its columns are handed to
 :func:`cr_control.analysis.analyze.metrics` as a session would be, so every metric has the
-name and the definition of ``cr_analyze``'s (e.g. ``pos_err_rms_last_half_m``); a thesis plant's
+name and the definition of ``cr_analyze``'s (e.g. ``pos_err_rms_last_half_m``); a robot's
+run is judged, as ``cr_analyze`` judges a robot session, by the plant's true contact force
+(the wrist sensor reads in its own frame, with the tool's weight and a bias); a thesis plant's
 run also gets its chapter's own figures (:mod:`.chapter_metrics`: chapters 2, 4, 6 and
 appendix C) and the robot sessions' ``contact_lost_s`` (time with no contact force, |f| as the
 normal force, after the first CONTACT_GRACE_S) and ``command_at_limit_s`` (time some command
@@ -35,21 +37,31 @@ LEFT_OUT = ("controller", "samples", "duration_s", "data_warnings")
 LEFT_OUT_PREFIXES = ("compute_time_", "publishers_", "stamps_", "loop_")
 
 
-def as_session(run: offline.OfflineRun, scheme: str, command_names: list[str]) -> analyze.Session:
+def as_session(run: offline.OfflineRun, scheme: str, command_names: list[str],
+               true_force: bool = False) -> analyze.Session:
     """The offline run as a loaded session: the controller's status and reference, the
-    joint states, the commands (efforts) and the measured wrench, stamped with run time."""
+    joint states, the commands (efforts) and the measured wrench, stamped with run time;
+    with ``true_force`` also the plant's true contact force (``/plant/contact_wrench`` of a
+    robot session, which ``cr_analyze`` judges the normal force by: a wrist sensor reads in
+    its own frame, with the tool's weight and a bias)."""
     status = {"stamp": run.time, **{n: run.column(n) for n in run.status_fields[1:]}}
     reference = {"stamp": run.time, **{n: run.column(n) for n in run.reference_fields[1:]}}
     commands = analyze.JointSeries(run.time, list(command_names), np.full_like(run.command, np.nan),
                                    np.full_like(run.command, np.nan), run.command)
     wrench = analyze.WrenchSeries(run.time, run.force, np.zeros_like(run.force))
+    contact = None
+    if true_force and run.true_force is not None and np.isfinite(run.true_force).all():
+        contact = analyze.WrenchSeries(run.time, run.true_force, np.zeros_like(run.true_force))
     return analyze.Session(Path(f"{scheme}.mcap"), controller=scheme, status=status,
-                           reference=reference, joint_commands=commands, wrench=wrench)
+                           reference=reference, joint_commands=commands, wrench=wrench,
+                           contact_wrench=contact)
 
 
-def point_metrics(run: offline.OfflineRun, scheme: str, command_names: list[str]) -> dict[str, float]:
-    """``cr_analyze``'s metrics of ``run`` (see the module docstring for what is left out)."""
-    values = analyze.metrics(as_session(run, scheme, command_names))
+def point_metrics(run: offline.OfflineRun, scheme: str, command_names: list[str],
+                  true_force: bool = False) -> dict[str, float]:
+    """``cr_analyze``'s metrics of ``run`` (see the module docstring for what is left out;
+    ``true_force``: see :func:`as_session`)."""
+    values = analyze.metrics(as_session(run, scheme, command_names, true_force))
     if "contact_lost_s" not in values and len(run.time):
         # the robot sessions' metric (cr_control.analysis.robot) on a thesis plant, with |f|
         # as the normal force: a unilateral contact presses or is lost
@@ -123,7 +135,7 @@ def run_point(scheme: str, robot: str | None, duration: float, controller_overri
         with np.errstate(all="ignore"):
             run = offline.run(controller, plant, duration)
             why = divergence(run, controller.values)
-            values = point_metrics(run, scheme, names)
+            values = point_metrics(run, scheme, names, true_force=robot is not None)
             values["command_at_limit_s"] = at_limit_seconds(run, controller, names)
             if robot is None and chapter5.is_chapter5(run.status_fields):
                 values.update(chapter5_metrics(run, scheme, controller.values, plant_overrides))

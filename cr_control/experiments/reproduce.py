@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import base64
 import html
+import importlib
 import json
 import math
 import sys
@@ -44,6 +45,8 @@ CH5_SECONDS = {"quick": 4.0, "full": 10.0}
 #: Chapter 3's verdict: the force error is "bounded" if it stays below this (N).
 FORCE_BOUND_N = 10.0
 ROOT = Path(__file__).resolve().parents[2]
+#: Modules adding studies and claims, each with ``studies(mode)`` and ``claims(results)``.
+MODULES = ("cr_control.experiments.normalised_gradient", "cr_control.experiments.panda_map")
 
 
 @dataclass
@@ -74,7 +77,10 @@ def studies(mode: str) -> list[Study]:
                                    "plant.disturbance_duration": CH5_DURATION[mode]},
                           "metrics": ["separated_s", "f_m_min_after_N", "f_err_rms_after_N",
                                       "pos_err_rms_after_m"]}))
-    return out + chapters_246c.studies(mode)
+    out += chapters_246c.studies(mode)
+    for module in MODULES:
+        out += importlib.import_module(module).studies(mode)
+    return out
 
 
 def row(result: SweepResult, **inputs: Any) -> dict[str, Any]:
@@ -149,6 +155,8 @@ def claims(results: dict[str, SweepResult]) -> list[dict[str, Any]]:
           "the smallest 60 ms disturbance of the grid that separates is larger for fuzzy",
           lambda: b > a)
     chapters_246c.claims(results, claim)
+    for module in MODULES:
+        out += importlib.import_module(module).claims(results)
     return out
 
 
@@ -221,6 +229,8 @@ def main(argv: Iterable[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, metavar="DIR")
     parser.add_argument("--quick", action="store_true", help="coarser maps, shorter ch. 4, 5 and C runs")
     parser.add_argument("--address", metavar="HOST:PORT", help="join this Ray cluster")
+    parser.add_argument("--write-tables", type=Path, metavar="RESULTS.md", help="then write "
+                        "the claims tables into this file (docs/results.md)")
     args = parser.parse_args(None if argv is None else list(argv))
     mode = "quick" if args.quick else "full"
     start = time.monotonic()
@@ -243,6 +253,11 @@ def main(argv: Iterable[str] | None = None) -> int:
     for c in items:
         print(f"ch. {c['chapter']}: {c['verdict']:15s} {c['claim'][:80]}")
     print(f"wrote {path} and {args.out / 'claims.json'} in {time.monotonic() - start:.0f} s")
+    if args.write_tables:
+        from cr_control.experiments import results_tables
+
+        return results_tables.main([str(args.out / "claims.json"), "--write",
+                                    str(args.write_tables)])
     return 0
 
 

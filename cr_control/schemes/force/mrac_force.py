@@ -12,6 +12,12 @@ come from the same states without differentiating anything:
     b3_hat' = gamma_f (phi^T theta_f_hat + delta_c/P_1) eps_p                     (4.76)
     theta_f_hat' = gamma_f phi eps_p                                               (4.77)
 
+``normalised_gradient`` (default off: the thesis's plain gradient) divides both laws by
+m^2 = 1 + phi^T phi + xi^2, xi = phi^T theta_f_hat + delta_c/P_1 (the normalised gradient of
+Ioannou & Sun, sec. 4.3.4; the regressor of the bilinear model is [phi; xi]):
+
+    theta_f_hat' = gamma_f phi eps_p / m^2,   b3_hat' = gamma_f xi eps_p / m^2
+
 Defaults (section 4.3): zeta = 0.7, omega = 0.5, P_o = p^4 + 19p^3 + 65p^2 + 77p + 30,
 gamma_f = 0.8, initial estimates 0.65 x the true theta_f and 0.65 x b_3 of case 1. The
 printed true theta_f is wrong in r_2..r_0 and the s_i (DESIGN.md): the defaults use the
@@ -46,6 +52,9 @@ PARAMETERS = [
           "(Hurwitz, faster than A_m).", "vector", 4, read_only=True, bound=Bound.POLYNOMIAL),
     Param("gamma_f", 0.8, "Adaptation gain gamma_f of (4.76)-(4.77); 0 stops adaptation.",
           "nonnegative", bound=Bound.GAIN),
+    Param("normalised_gradient", False, "Divide the adaptive laws (4.76)-(4.77) by "
+          "m^2 = 1 + phi^T phi + xi^2 (a normalised gradient; off: the thesis's plain "
+          "gradient).", "bool"),
     Param("theta_f_hat_0", [0.65 * x for x in TRUE_THETA_F_CASE1],
           "Initial theta_f_hat = [r3' r2' r1' r0' s4..s0 t4..t0] (thesis: 0.65 x the true "
           "theta_f of case 1, corrected).", "vector", 14, read_only=True, bound=Bound.POLYNOMIAL),
@@ -62,8 +71,8 @@ _WD, _WF, _WR, _FM, _TH, _B3, _UPREV, _FPREV, _THD, _B3D, _STARTED = (
     0, 6, 12, 18, 20, 34, 35, 36, 37, 51, 52)
 STATE_SIZE = 53
 # packed gains
-_PF, _ZW2, _W2, _O, _GF, _FD, _BUMP = 0, 6, 7, 8, 12, 13, 14
-GAINS_SIZE = 15
+_PF, _ZW2, _W2, _O, _GF, _FD, _BUMP, _NORM = 0, 6, 7, 8, 12, 13, 14, 15
+GAINS_SIZE = 16
 
 
 @njit(cache=True)
@@ -158,9 +167,15 @@ def mrac_cycle(g, state, q, v, force, dt, work, phi, p1phi, out, extras_at):
     s += wd[4] + o[0] * wd[3] + o[1] * wd[2] + o[2] * wd[1] + o[3] * wd[0]   # delta_c / P_1
     e = f - state[_FM]
     eps = e - state[_B3] * s
-    state[_B3D] = gf * s * eps
+    rate = gf
+    if g[_NORM] != 0.0:                                  # m^2 = 1 + phi^T phi + xi^2
+        m2 = 1.0 + s * s
+        for j in range(14):
+            m2 += phi[j] * phi[j]
+        rate = gf / m2
+    state[_B3D] = rate * s * eps
     for j in range(14):
-        th_dot[j] = gf * phi[j] * eps
+        th_dot[j] = rate * phi[j] * eps
     state[_UPREV], state[_FPREV] = delta_c, f
     command, reference, status = split_output(out, 1)
     command[0] = delta_c
@@ -207,6 +222,7 @@ class MRACForceController(Controller):
         g[_ZW2], g[_W2] = A_m[1], A_m[2]
         g[_O:_O + 4] = v["observer_polynomial"]
         g[_GF], g[_FD], g[_BUMP] = v["gamma_f"], v["f_d"], float(v["bumpless_start"])
+        g[_NORM] = float(v["normalised_gradient"])
 
     def compute(self, t, dt, q, v, force) -> ControlOutput:
         out = self._output.new()
