@@ -39,6 +39,8 @@ TARGET_WRENCH_SUFFIX = "target_wrench"
 #: Depth of the RELIABLE/KEEP_LAST queues on the 1 kHz topics (depth 1 dropped
 #: messages across processes on these machines; 10 lost none).
 QOS_DEPTH = 10
+#: Reader history of a controller's /joint_states (nodes/qos.py STATE_QOS).
+STATE_DEPTH = 128
 #: Depth of the writer history of the 1 kHz publishers (nodes/qos.py, PUBLISH_QOS).
 PUBLISH_DEPTH = 500
 

@@ -83,7 +83,7 @@ from cr_control.nodes import sender_aware
 from cr_control.nodes.diagnostics import ControllerDiagnostics
 from cr_control.nodes.lockstep import ReaderPacer
 from cr_control.nodes.markers import ControllerMarkers
-from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS, TARGET_QOS
+from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS, STATE_QOS, TARGET_QOS
 from cr_control.nodes.raw_messages import (
     ARRAY_MAX_BYTES,
     MAX_JOINTS,
@@ -502,7 +502,7 @@ class ControllerNode(LifecycleNode):
         callback = quiet_on_shutdown(self, self._on_joint_state)
         if sender_aware.available():
             self._state_sub = sender_aware.subscribe(self, JointState, topics.JOINT_STATES,
-                                                     callback, CONTROL_QOS, self._max_state_bytes)
+                                                     callback, STATE_QOS, self._max_state_bytes)
             return
         self._state_sub = self.create_subscription(JointState, topics.JOINT_STATES, callback,
                                                    CONTROL_QOS, raw=True)

@@ -14,6 +14,13 @@ CONTROL_QOS = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.R
 #: fell behind should not work through a backlog of stale states); matching is unaffected.
 PUBLISH_QOS = QoSProfile(depth=topics.PUBLISH_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 
+#: A controller's /joint_states: the loop's QoS with a deeper reader history. Its plant's
+#: states must survive a flood from a second publisher (issue 25: 50 000 states as fast as
+#: rclpy sends them overwrote them in a history of 10, and the plant's watchdog stopped it);
+#: the node takes what is queued in one wake-up and answers only the newest state of its
+#: plant, so a deep history is no backlog of stale states.
+STATE_QOS = QoSProfile(depth=topics.STATE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+
 #: The recorder's ready flag: latched, so a plant that starts later still sees it.
 READY_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)

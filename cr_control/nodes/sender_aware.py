@@ -40,9 +40,9 @@ from rclpy.waitable import NumberOfEntities, Waitable
 GID_SIZE = 16
 RCL_RET_OK = 0
 RCL_RET_SUBSCRIPTION_TAKE_FAILED = 401
-#: Messages taken per executor wake-up at most (a reader's history holds QOS_DEPTH = 10;
-#: the bound keeps one wake-up short whatever arrives meanwhile).
-MAX_TAKES_PER_WAKE = 32
+#: Messages taken per executor wake-up at most: a controller's state history
+#: (topics.STATE_DEPTH); the bound keeps one wake-up short whatever arrives meanwhile.
+MAX_TAKES_PER_WAKE = 128
 
 
 class _Gid(ctypes.Structure):
