@@ -165,6 +165,45 @@ def test_nodes_use_the_package_dds_profile_unless_the_user_chose_one(tmp_path, m
     assert not use_node_dds_profile(env) and env == {}
 
 
+def _heartbeats_ns(profile) -> dict[str, int]:
+    """Writer profile name -> heartbeat period (ns) of a Fast DDS profile file."""
+    import xml.etree.ElementTree as ET
+
+    ns = "{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}"
+    out = {}
+    for w in ET.parse(profile).getroot().iter(f"{ns}data_writer"):
+        period = w.find(f"{ns}times/{ns}heartbeatPeriod")
+        out[w.get("profile_name")] = (int(period.find(f"{ns}sec").text) * 1_000_000_000
+                                      + int(period.find(f"{ns}nanosec").text))
+    return out
+
+
+def test_lockstep_nodes_take_the_lockstep_profile(tmp_path, monkeypatch):
+    """Real time: 10 ms heartbeats on the loop's writers only (100 ms on the others: the
+    heartbeat traffic of the Panda session's ~10 writers cost 1.57x the echo pair's CPU);
+    lockstep: 10 ms on every writer (the pacing waits for acks). A node asked for lockstep by
+    -p or by a params file takes the lockstep profile."""
+    from cr_control.core.ros_env import LOCKSTEP_DDS_PROFILE
+    from cr_control.nodes.spin import lockstep_requested
+
+    realtime, lockstep = _heartbeats_ns(NODE_DDS_PROFILE), _heartbeats_ns(LOCKSTEP_DDS_PROFILE)
+    loop = {topics.JOINT_STATES, topics.JOINT_COMMANDS, topics.WRENCH, topics.CLOCK,
+            topics.PLANT_SENSORS}
+    assert realtime == {"cr_control_writer": 100_000_000, **{t: 10_000_000 for t in loop}}
+    assert lockstep == {"cr_control_writer": 10_000_000}
+    monkeypatch.chdir(tmp_path)
+    env: dict[str, str] = {}
+    assert use_node_dds_profile(env, lockstep=True) and env[DDS_PROFILE_VARIABLE] == str(LOCKSTEP_DDS_PROFILE)
+    assert lockstep_requested(["x", "--ros-args", "-p", "lockstep:=true"])
+    assert lockstep_requested(["x", "--ros-args", "-p", "mode:=lockstep"])
+    assert not lockstep_requested(["x", "--ros-args", "-p", "mode:=realtime", "-p", "lockstep:=false"])
+    params = tmp_path / "p.yaml"
+    params.write_text("plant:\n  ros__parameters:\n    mode: lockstep\n")
+    assert lockstep_requested(["x", "--ros-args", "--params-file", str(params)])
+    params.write_text("plant:\n  ros__parameters:\n    mode: realtime\n")
+    assert not lockstep_requested(["x", "--ros-args", "--params-file", str(params)])
+
+
 class _Publisher:
     def __init__(self, topic_name: str, acks: bool):
         self.topic_name, self.acks, self.waits = topic_name, acks, 0

@@ -28,8 +28,10 @@ DOMAIN_SPAN = 50
 MAX_DOMAIN_ID = 232
 #: Where the per-domain lock files live (shared by every user of this machine).
 LOCK_DIR = Path(tempfile.gettempdir()) / "cr_control-domains"
-#: The Fast DDS profile of our nodes (frequent heartbeats; see the file).
+#: The Fast DDS profile of our nodes in real time (frequent heartbeats on the loop topics;
+#: see the file), and in lockstep (on every writer: the lockstep pacing waits for acks).
 NODE_DDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
+LOCKSTEP_DDS_PROFILE = Path(__file__).with_name("fastdds_profile_lockstep.xml")
 #: Where Fast DDS (2.x) looks for a profile: this variable, else this file in the cwd.
 DDS_PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
 DDS_PROFILE_IN_CWD = "DEFAULT_FASTRTPS_PROFILES.xml"
@@ -214,15 +216,16 @@ def isolated_env(domain_id: int | None = None, base: dict[str, str] | None = Non
     return env
 
 
-def use_node_dds_profile(env: dict[str, str] | None = None) -> bool:
-    """Point Fast DDS at :data:`NODE_DDS_PROFILE` in ``env`` (default: os.environ)
-    unless the user chose a profile (the variable set, or the file in the cwd); call it
-    before ``rclpy.init``. True if the profile was set."""
+def use_node_dds_profile(env: dict[str, str] | None = None, lockstep: bool = False) -> bool:
+    """Point Fast DDS at :data:`NODE_DDS_PROFILE` (``lockstep``: :data:`LOCKSTEP_DDS_PROFILE`)
+    in ``env`` (default: os.environ) unless the user chose a profile (the variable set, or
+    the file in the cwd); call it before ``rclpy.init``. True if the profile was set."""
     env = os.environ if env is None else env
+    profile = LOCKSTEP_DDS_PROFILE if lockstep else NODE_DDS_PROFILE
     chosen = env.get(DDS_PROFILE_VARIABLE) or Path(DDS_PROFILE_IN_CWD).exists()
-    if chosen or not NODE_DDS_PROFILE.is_file():
+    if chosen or not profile.is_file():
         return False
-    env[DDS_PROFILE_VARIABLE] = str(NODE_DDS_PROFILE)
+    env[DDS_PROFILE_VARIABLE] = str(profile)
     return True
 
 

@@ -39,8 +39,10 @@ PERIOD_S = 1.0 / 30.0
 TRAIL_POINTS = 120
 #: Layouts of markers serialized and kept per publisher (a new layout beyond: all dropped).
 MAX_LAYOUTS = 16
-#: RELIABLE, depth 5: a viewer keeps up at 30 Hz; the recorder misses none.
-MARKERS_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+#: RELIABLE, depth 16: the recorder misses none. A lockstep loop waits for its readers
+#: only every lockstep.ACK_EVERY (250) states, 7.5 marker periods of simulated time: with
+#: depth 5 a recorder stopped meanwhile lost markers the writer had already overwritten.
+MARKERS_QOS = QoSProfile(depth=16, reliability=ReliabilityPolicy.RELIABLE)
 #: The position of a marker drawn by its points.
 ORIGIN = (0.0, 0.0, 0.0)
 #: Colours (r, g, b, a).

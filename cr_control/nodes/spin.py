@@ -46,6 +46,7 @@ from contextlib import contextmanager, suppress
 from typing import Any
 
 import rclpy
+import yaml
 from rclpy.duration import Duration
 from rclpy.exceptions import NameValidationException, ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -106,6 +107,32 @@ def params_files(argv: Sequence[str]) -> list[str]:
     return files
 
 
+def lockstep_requested(argv: Sequence[str]) -> bool:
+    """True if ``argv``'s parameters put the node in lockstep (``lockstep: true``, a
+    controller's, or ``mode: lockstep``, the plant's), given with ``-p`` or in a params file
+    (any node's): the process then takes the lockstep Fast DDS profile."""
+    def asks(name: str, value: Any) -> bool:
+        return ((name == "lockstep" and str(value).lower() == "true")
+                or (name == "mode" and str(value).strip("'\"") == "lockstep"))
+
+    for i, arg in enumerate(argv[:-1]):
+        if arg in ("-p", "--param") and ":=" in argv[i + 1]:
+            name, value = argv[i + 1].split(":=", 1)
+            if asks(name.rsplit(":", 1)[-1], value):
+                return True
+    for path in params_files(argv):
+        try:
+            with open(path, encoding="utf-8") as f:
+                tree = ros_yaml.load(f.read())
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):
+            continue        # rcl reports an unreadable file
+        for node in (tree.values() if isinstance(tree, dict) else []):
+            values = node.get("ros__parameters") if isinstance(node, dict) else None
+            if isinstance(values, dict) and any(asks(k, v) for k, v in values.items()):
+                return True
+    return False
+
+
 def refuse_empty_params_files(label: str, argv: Sequence[str]) -> bool:
     """True, after printing ``<label>: refused to start: params file ... is empty ...``, if a
     ``--params-file`` of ``argv`` is empty (nothing, only comments, ``{}``, ``null``): rcl
@@ -125,7 +152,8 @@ def start_nodes(label: str, argv: list[str], make: Callable[[], list[Node]]) -> 
     <reason>`` on stderr and return None."""
     if refuse_empty_params_files(label, argv):
         return None
-    use_node_dds_profile()   # before init: Fast DDS reads its profile once per process
+    # before init: Fast DDS reads its profile once per process
+    use_node_dds_profile(lockstep=lockstep_requested(argv))
     try:
         with _held_stderr() as held:
             try:
