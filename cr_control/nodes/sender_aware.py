@@ -168,15 +168,6 @@ class SenderAwareSubscription(Waitable):
         else:
             self.callback(data, gid)
 
-    def take(self) -> bool:
-        """Take one message and hand it to the callback; False if there was none."""
-        taken = self._take_one()
-        if taken is None:
-            return False
-        self.newer_queued = False
-        self._dispatch(*taken)
-        return True
-
     # -- Waitable ----------------------------------------------------------------------
     def is_ready(self, wait_set) -> bool:
         return self._index is not None and wait_set.is_ready("subscription", self._index)
