@@ -27,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -208,18 +209,24 @@ def _range(name: str, body: dict[str, Any], param: Param) -> Range:
     return Range(low, high, log)
 
 
+def check_keys(data: Any, keys: Sequence[str], required: Sequence[str], source: str) -> None:
+    """SpecError (one line) unless ``data`` is a mapping of ``keys`` only, ``required`` among
+    them (a sweep SPEC's, a tune SPEC's)."""
+    if not isinstance(data, dict):
+        raise SpecError(f"{source}: a mapping with keys {', '.join(keys)} is expected")
+    unknown = [k for k in data if k not in keys]
+    if unknown:
+        raise SpecError(f"{source}: unknown key {unknown[0]!r} (keys: {', '.join(keys)})")
+    for key in required:
+        if key not in data:
+            raise SpecError(f"{source}: missing key {key!r}")
+
+
 def parse_spec(data: Any, source: str = "SPEC") -> tuple[SweepSpec, Targets]:
     """The checked SPEC of ``data`` (the YAML mapping) and its parameters; SpecError (one
     line) for anything that would not run: a missing or unknown key, an unknown scheme,
     robot, node or parameter, an empty grid, or a value the parameter refuses."""
-    if not isinstance(data, dict):
-        raise SpecError(f"{source}: a mapping with keys {', '.join(KEYS)} is expected")
-    unknown = [k for k in data if k not in KEYS]
-    if unknown:
-        raise SpecError(f"{source}: unknown key {unknown[0]!r} (keys: {', '.join(KEYS)})")
-    for key in ("scheme", "duration", "vary"):
-        if key not in data:
-            raise SpecError(f"{source}: missing key {key!r}")
+    check_keys(data, KEYS, ("scheme", "duration", "vary"), source)
     scheme = data["scheme"]
     if scheme not in SCHEMES:
         raise SpecError(f"scheme: unknown scheme {scheme!r} (known: {', '.join(sorted(SCHEMES))})")

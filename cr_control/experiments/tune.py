@@ -40,7 +40,7 @@ import yaml
 
 from cr_control.core import ros_yaml
 from cr_control.experiments import engine
-from cr_control.experiments.spec import PLANT, Range, SpecError, Targets, parse_spec
+from cr_control.experiments.spec import PLANT, Range, SpecError, Targets, check_keys, parse_spec
 
 KEYS = ("scheme", "duration", "metric", "search", "samples", "seed", "set", "scenarios",
         "held_out")
@@ -78,14 +78,7 @@ def load(path: Path) -> tuple[dict[str, Any], Targets]:
         raise SpecError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except yaml.YAMLError as exc:
         raise SpecError(f"{path}: not valid YAML: {ros_yaml.describe_error(exc)}") from None
-    if not isinstance(data, dict):
-        raise SpecError(f"{path}: a mapping with keys {', '.join(KEYS)} is expected")
-    unknown = [k for k in data if k not in KEYS]
-    if unknown:
-        raise SpecError(f"{path}: unknown key {unknown[0]!r} (keys: {', '.join(KEYS)})")
-    for key in ("metric", "search", "held_out"):
-        if key not in data:
-            raise SpecError(f"{path}: missing key {key!r}")
+    check_keys(data, KEYS, ("metric", "search", "held_out"), str(path))
     search = data["search"]
     if not isinstance(search, dict) or not search or \
             not all(isinstance(v, dict) for v in search.values()):
