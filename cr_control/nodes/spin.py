@@ -59,7 +59,7 @@ from rclpy.task import Future
 from cr_control.core import ros_yaml
 from cr_control.core.parameters import ParameterError
 from cr_control.core.ros_env import use_node_dds_profile
-from cr_control.nodes import realtime_priority
+from cr_control.nodes import memory_reserve, realtime_priority
 
 #: rclpy's error for failures in rcl (a bad params file at init, a publish after shutdown).
 RCLError = _rclpy.RCLError
@@ -297,6 +297,15 @@ def wait_for_readers(publishers: Sequence[Publisher], timeout_s: float) -> bool:
     return acked or _interrupted_at is not None
 
 
+def _reserve_memory(nodes: Sequence[Node]) -> None:
+    """A pre-faulted heap (memory_reserve) for a process that runs the real-time loop."""
+    loop = [node for node in nodes if realtime_priority.runs_realtime_loop(node)]
+    if loop and not any(getattr(n, "realtime_loop", None) is False for n in nodes):
+        why = memory_reserve.reserve()
+        if why is not None:
+            loop[0].get_logger().warn(f"real-time loop: no pre-faulted heap ({why})")
+
+
 def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
     """Spin ``nodes`` on one EventsExecutor until Ctrl-C, shutdown or ``until`` completes."""
     global _interrupted_at
@@ -308,6 +317,7 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
     for node in nodes:
         executor.add_node(node)
     realtime_priority.apply(nodes)   # the real-time loop's threads ahead of other processes
+    _reserve_memory(nodes)           # and large messages taken without page faults
     until = Future() if until is None else until
     _interrupted_at = None
     in_main = threading.current_thread() is threading.main_thread()   # signals only there

@@ -1,0 +1,80 @@
+"""A pre-faulted heap for the processes of the real-time loop (issue 25), as real-time
+Linux practice and ros2_control's ``lock_memory`` prepare a control process: memory the
+loop's thread may need later is touched once at start, so that taking a large message
+never waits for the kernel to supply fresh pages.
+
+Why: rmw_fastrtps takes a message by copying it twice (into a CDR buffer, then into the
+caller's), into buffers malloc'd for that take. glibc serves an allocation above its
+mmap threshold (128 KiB to 32 MiB, adaptive) with a fresh mapping, and each of its pages
+faults on first touch; on this project's 2-core VM a page fault costs 5-40 us, so the
+controller's take of one 18 MB JointState (the fuzz's 640 000 names) took 26 ms quiet and
+160-190 ms beside a busy process, all of it on the loop's only thread (measured
+2026-11-25 with the probe in docs/safety.md). With the heap below: 10.6 ms quiet, the
+copies alone.
+
+What :func:`reserve` does (glibc only; elsewhere a no-op that says why):
+- ``mallopt(M_MMAP_MAX, 0)``: every allocation, however large, comes from the heap;
+- ``mallopt(M_TRIM_THRESHOLD, 1 GiB)``: freed heap memory stays with the process;
+- malloc ``RESERVE_BYTES``, touch every page, free it: later allocations of the main
+  arena (the loop's thread, Python's objects) reuse those pages.
+
+``CR_CONTROL_MEMORY_RESERVE_MB`` sets the reserve's size (default 64; 0: none, glibc's
+defaults). Messages larger than the reserve still fault their excess pages in: the reserve covers
+what the node guards admit and the oversized inputs the fuzz sends, not every size. The
+cost: RESERVE_BYTES of resident memory per loop process, touched once at start (7-60 ms
+here, once).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+
+#: Bytes pre-faulted in each loop process: two copies of the fuzz's 18 MB JointState, or
+#: the three buffers (CDR, C struct, Python array) of an 8 MB parameter request, with room.
+RESERVE_BYTES = 64 << 20
+#: Environment variable: the reserve in MiB (0: none).
+RESERVE_VARIABLE = "CR_CONTROL_MEMORY_RESERVE_MB"
+#: glibc's mallopt parameters (malloc.h).
+M_TRIM_THRESHOLD = -1
+M_MMAP_MAX = -4
+_PAGE = 4096
+
+
+def reserve_bytes() -> int:
+    """The reserve asked for: RESERVE_VARIABLE in MiB, else RESERVE_BYTES."""
+    text = os.environ.get(RESERVE_VARIABLE, "").strip()
+    try:
+        return max(0, min(4096, int(text))) << 20 if text else RESERVE_BYTES
+    except ValueError:
+        return RESERVE_BYTES
+
+
+def reserve(size: int | None = None) -> str | None:
+    """Keep large allocations on a heap of at least ``size`` bytes (default
+    :func:`reserve_bytes`) already faulted in; None if done or none asked for, else why not
+    (the process is left as it was)."""
+    size = reserve_bytes() if size is None else size
+    if size <= 0:
+        return None
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError) as exc:                    # not glibc
+        return f"no glibc mallopt ({exc})"
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    libc.malloc.argtypes, libc.malloc.restype = [ctypes.c_size_t], ctypes.c_void_p
+    libc.free.argtypes, libc.free.restype = [ctypes.c_void_p], None
+    if mallopt(M_MMAP_MAX, 0) != 1 or mallopt(M_TRIM_THRESHOLD, 1 << 30) != 1:
+        return "mallopt refused"
+    block = libc.malloc(size)
+    if not block:
+        return f"cannot allocate {size} bytes"
+    ctypes.memset(block, 0, size)                               # fault every page in
+    libc.free(block)
+    return None
+
+
+__all__ = ["RESERVE_BYTES", "RESERVE_VARIABLE", "reserve", "reserve_bytes"]
