@@ -40,6 +40,7 @@ from cr_control.core.parameters import (
     size_refusal,
     validate,
 )
+from cr_control.nodes import parameter_gate
 
 _ROS_TYPES = {
     **dict.fromkeys(SCALAR_KINDS, ParameterType.PARAMETER_DOUBLE),
@@ -200,7 +201,9 @@ def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any
     value of a request is checked against the values in force. ``apply`` runs after rclpy
     stored the new values, so a value is in force from the next control cycle on.
 
-    The node's parameter services first screen each request (:func:`_screen_requests`): a
+    The node's parameter services are served off the control thread, and a request larger
+    than parameter_gate.MAX_REQUEST_BYTES is refused unread there (:mod:`parameter_gate`).
+    They then screen each request (:func:`_screen_requests`): a
     name the node does not have is refused with a reason naming it (rclpy 7.1.6 answers
     "Invalid access to undeclared parameter(s): []"), and a value with more elements than its
     parameter takes is refused without being read. Refusals are logged through a
@@ -230,27 +233,33 @@ def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any
                 apply(p.name, validate(by_name[p.name], p.value)[2])
                 node.get_logger().info(f"{p.name} set to {p.value!r}")
 
-    def screen(msg: ParameterMsg) -> str | None:
-        """Why ``msg`` is refused from what the request says (None: let rclpy handle it)."""
-        name, spec = msg.name, by_name.get(msg.name)
+    def explain(name: str, n: int) -> str | None:
+        """Why a value of ``n`` elements for ``name`` is refused from its size and name alone
+        (None: let rclpy handle it)."""
+        spec = by_name.get(name)
         if spec is None and not node.has_parameter(name):
             owner = node.get_name()
-            reason = (unknown_reason(owner, [name], node.list_parameters([], 0).names)
-                      or f"unknown parameter for {owner}: {name}")   # an undeclared qos_overrides.*
-            warn("(unknown)", f"refused {reason}")
-            return reason
-        field = _ARRAY_FIELDS.get(msg.value.type)
-        n = 0 if field is None else len(getattr(msg.value, field))
+            return (unknown_reason(owner, [name], node.list_parameters([], 0).names)
+                    or f"unknown parameter for {owner}: {name}")   # an undeclared qos_overrides.*
         if n <= (MAX_VALUES if spec is None else spec.max_values):
             return None
-        reason = (f"{name} takes at most {MAX_VALUES} values, got {n}" if spec is None
-                  else size_refusal(spec, n))
-        warn(name, f"refused {name}: {reason}")
+        return (f"{name} takes at most {MAX_VALUES} values, got {n}" if spec is None
+                else size_refusal(spec, n))
+
+    def screen(msg: ParameterMsg) -> str | None:
+        """Why ``msg`` is refused from what the request says (None: let rclpy handle it)."""
+        field = _ARRAY_FIELDS.get(msg.value.type)
+        reason = explain(msg.name, 0 if field is None else len(getattr(msg.value, field)))
+        if reason is not None:
+            known = msg.name in by_name or node.has_parameter(msg.name)
+            warn(msg.name if known else "(unknown)", f"refused {reason}" if not known
+                 else f"refused {msg.name}: {reason}")
         return reason
 
     node.add_on_set_parameters_callback(check)
     node.add_post_set_parameters_callback(commit)
     _screen_requests(node, screen)
+    parameter_gate.install(node, explain)   # requests taken and sized off the control thread
 
 
 def _screen_requests(node: Node, screen: Callable[[ParameterMsg], str | None]) -> None:
