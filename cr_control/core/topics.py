@@ -39,8 +39,12 @@ TARGET_WRENCH_SUFFIX = "target_wrench"
 #: Depth of the RELIABLE/KEEP_LAST queues on the 1 kHz topics (depth 1 dropped
 #: messages across processes on these machines; 10 lost none).
 QOS_DEPTH = 10
-#: Reader history of a controller's /joint_states (nodes/qos.py STATE_QOS).
-STATE_DEPTH = 128
+#: Reader history of a controller's /joint_states (nodes/qos.py STATE_QOS). The history of
+#: a keyless topic is shared by its writers: a flood from a second publisher evicts the
+#: plant's states unless they are taken first. 2048 holds 0.2 s of a 10 kHz flood (the
+#: fuzz's 50 000 states came at ~4 kHz); memory is taken only as it fills. At 128, the
+#: plant's states were evicted whenever the starved controller fell ~30 ms behind.
+STATE_DEPTH = 2048
 #: Depth of the writer history of the 1 kHz publishers (nodes/qos.py, PUBLISH_QOS).
 PUBLISH_DEPTH = 500
 

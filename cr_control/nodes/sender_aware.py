@@ -40,8 +40,9 @@ from rclpy.waitable import NumberOfEntities, Waitable
 GID_SIZE = 16
 RCL_RET_OK = 0
 RCL_RET_SUBSCRIPTION_TAKE_FAILED = 401
-#: Messages taken per executor wake-up at most: a controller's state history
-#: (topics.STATE_DEPTH); the bound keeps one wake-up short whatever arrives meanwhile.
+#: Messages taken per executor wake-up at most (~2-3 ms of takes); the bound keeps one
+#: wake-up short whatever arrives meanwhile (a deeper history, topics.STATE_DEPTH, is
+#: taken over several wake-ups, the executor waking at once while messages are queued).
 MAX_TAKES_PER_WAKE = 128
 
 
