@@ -12,8 +12,9 @@ says what happened, one row per case:
 - finite: every recorded joint position and velocity is finite;
 - max |q'|: the largest joint speed after the first second (rad/s or m/s);
 - safe stop: the plant's safe stop engaged (``/plant/timing``);
-- resumed: the controller commands at the end (the last timing window >= 90 % fresh,
-  none of its commands stopped);
+- resumed: the controller commands at the end (none of its commands stopped, and the
+  last timing window's share of fresh commands at most RESUMED_DROP below the baseline
+  run's median window: a stopped controller gives ~0 %, a loaded 2-core machine 75-95 %);
 - miss: the longest run of plant ticks without a new command (ms at 1 kHz);
 - verdict: ``survived`` when alive, finite, no safe stop, resumed, max |q'| within the
   baseline run's (same scheme, nothing sent) times SPEED_MARGIN plus SPEED_FLOOR, and,
@@ -52,8 +53,10 @@ SPEED_MARGIN = 1.2
 SPEED_FLOOR = 0.05
 #: The speed is judged from this many seconds after the first state (start transients).
 SETTLE_S = 1.0
-#: "resumed": the last timing window's share of fresh cycles at least this.
-RESUMED_FRESH_SHARE = 0.9
+#: "resumed": the last timing window's share of fresh cycles at most this far below the
+#: baseline run's median window (the baseline: its own). A fixed 90 % failed the baseline
+#: itself on a loaded day (its windows 75-92 %, 2026-11-25).
+RESUMED_DROP = 0.10
 
 
 @dataclass(frozen=True)
@@ -280,10 +283,21 @@ class Row:
     #: What the nodes counted (nonzero counters of /plant/timing and the controller's
     #: status) and the parameter answers: the evidence that the input was refused.
     seen: str = ""
+    #: The median window's share of fresh commands (the reference of the cases' "resumed").
+    fresh_median: float = math.nan
 
 
-def judge(recording: Path | None, case: str, alive: bool, note: str) -> Row:
-    """The row of a case from its recording (None: nothing recorded)."""
+def commanding_at_end(fresh: np.ndarray, stopped: np.ndarray, reference: float) -> bool:
+    """The controller commands at the end: its commands not stopped, and the last timing
+    window's fresh share at most RESUMED_DROP below ``reference``."""
+    return bool(len(fresh) and len(stopped) and stopped[-1] == 0
+                and fresh[-1] >= reference - RESUMED_DROP)
+
+
+def judge(recording: Path | None, case: str, alive: bool, note: str,
+          reference: float | None = None) -> Row:
+    """The row of a case from its recording (None: nothing recorded); ``reference``: the
+    baseline's median fresh share (None: the run's own, for the baseline)."""
     from cr_control.analysis.analyze import load_session
 
     if recording is None or not recording.exists():
@@ -303,7 +317,8 @@ def judge(recording: Path | None, case: str, alive: bool, note: str) -> Row:
     safe_stop = bool(np.any(timing.get("safe_stop", np.zeros(1)) > 0))
     fresh = timing.get("window_fresh_share", np.zeros(0))
     stopped = session.status.get("commands_stopped", np.zeros(1))
-    resumed = bool(len(fresh) and fresh[-1] >= RESUMED_FRESH_SHARE and stopped[-1] == 0)
+    median = float(np.median(fresh)) if len(fresh) else math.nan
+    resumed = commanding_at_end(fresh, stopped, median if reference is None else reference)
     miss = timing.get("window_max_missed_run", np.full(1, math.nan))
     counted = [f"{name} {int(np.nanmax(values[name]))}" for values, names in (
         (timing, PLANT_COUNTERS), (session.status, CONTROLLER_COUNTERS))
@@ -311,7 +326,7 @@ def judge(recording: Path | None, case: str, alive: bool, note: str) -> Row:
     held = int(np.sum(session.status.get("held", np.zeros(0)) > 0))
     counted += [f"held cycles {held}"] if held else []
     return Row(case, alive, finite, speed, safe_stop, resumed, float(np.nanmax(miss)), note,
-               seen=", ".join(counted))
+               seen=", ".join(counted), fresh_median=median)
 
 
 def verdict(row: Row, case: Case, baseline: Row | None) -> str:
@@ -330,8 +345,10 @@ def verdict(row: Row, case: Case, baseline: Row | None) -> str:
     return f"FAILED: {reasons[0]}" if reasons else "survived"
 
 
-def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print) -> Row:
-    """Run ``case`` in a recorded real-time session; its row (verdict not yet set)."""
+def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
+             reference: float | None = None) -> Row:
+    """Run ``case`` in a recorded real-time session; its row (verdict not yet set);
+    ``reference``: the baseline's median fresh share."""
     from cr_control.tools.session import Session, SessionConfig, SessionError
 
     cfg = SessionConfig(scheme=args.scheme, duration=args.duration + case.extra_s, robot=args.robot,
@@ -366,7 +383,7 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print) ->
         worker.join()
         intruder.close()
         domain.release()
-    row = judge(session.mcap, case.name, not failure, failure[0] if failure else note)
+    row = judge(session.mcap, case.name, not failure, failure[0] if failure else note, reference)
     answers = [reply.reason or "accepted" if not reply.successful else "accepted"
                for reply in intruder.replies]
     if answers:
@@ -428,7 +445,8 @@ def main(argv: list[str] | None = None) -> int:
         rows: list[Row] = []
         for i, name in enumerate(order, 1):
             print(f"[{i}/{len(order)}] {name}: {cases[name].what} ...", flush=True)
-            row = run_case(cases[name], args, out)
+            row = run_case(cases[name], args, out,
+                           reference=rows[0].fresh_median if rows else None)
             row.verdict = verdict(row, cases[name], rows[0] if rows else None)
             print(f"    {row.verdict}", flush=True)
             rows.append(row)
