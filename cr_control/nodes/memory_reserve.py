@@ -9,8 +9,8 @@ mmap threshold (128 KiB to 32 MiB, adaptive) with a fresh mapping, and each of i
 faults on first touch; on this project's 2-core VM a page fault costs 5-40 us, so the
 controller's take of one 18 MB JointState (the fuzz's 640 000 names) took 26 ms quiet and
 160-190 ms beside a busy process, all of it on the loop's only thread (measured
-2026-11-25 with the probe in docs/safety.md). With the heap below: 10.6 ms quiet, the
-copies alone.
+2026-11-25: sender_aware's take timed in a subscriber process, the state published by
+another). With the heap below: 10.6 ms quiet, the two copies alone.
 
 What :func:`reserve` does (glibc only; elsewhere a no-op that says why):
 - ``mallopt(M_MMAP_MAX, 0)``: every allocation, however large, comes from the heap;
