@@ -78,12 +78,12 @@ def test_bad_command_lines_are_one_line_and_exit_2(args, message):
 
 def test_commanding_at_the_end_is_judged_against_the_baselines_windows():
     """A stopped controller (~0 % fresh, or commands_stopped) is not commanding; a loaded
-    machine's 80 % is, when the baseline's median window was 85 %."""
+    machine's 80 % is, when the baseline's median window was 85 %; 40 % against 97 % is not."""
     import numpy as np
 
     fresh, running, stopped = np.array([0.9, 0.8]), np.zeros(2), np.array([0.0, 1.0])
     assert fuzz.commanding_at_end(fresh, running, reference=0.85)
     assert not fuzz.commanding_at_end(fresh, stopped, reference=0.85)
     assert not fuzz.commanding_at_end(np.array([0.9, 0.02]), running, reference=0.85)
-    assert not fuzz.commanding_at_end(fresh, running, reference=0.97)     # 80 % < 97 % - 10 pp
+    assert not fuzz.commanding_at_end(np.array([0.9, 0.4]), running, reference=0.97)   # < 48.5 %
     assert not fuzz.commanding_at_end(np.array([]), np.array([]), reference=0.85)

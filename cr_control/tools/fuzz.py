@@ -13,8 +13,9 @@ says what happened, one row per case:
 - max |q'|: the largest joint speed after the first second (rad/s or m/s);
 - safe stop: the plant's safe stop engaged (``/plant/timing``);
 - resumed: the controller commands at the end (none of its commands stopped, and the
-  last timing window's share of fresh commands at most RESUMED_DROP below the baseline
-  run's median window: a stopped controller gives ~0 %, a loaded 2-core machine 75-95 %);
+  last timing window's share of fresh commands at least RESUMED_SHARE of the baseline
+  run's median window: a stopped controller gives ~0 %, a loaded 2-core machine 55-95 %
+  window to window; how well the loop runs is the miss column's);
 - miss: the longest run of plant ticks without a new command (ms at 1 kHz);
 - verdict: ``survived`` when alive, finite, no safe stop, resumed, max |q'| within the
   baseline run's (same scheme, nothing sent) times SPEED_MARGIN plus SPEED_FLOOR, and,
@@ -53,10 +54,10 @@ SPEED_MARGIN = 1.2
 SPEED_FLOOR = 0.05
 #: The speed is judged from this many seconds after the first state (start transients).
 SETTLE_S = 1.0
-#: "resumed": the last timing window's share of fresh cycles at most this far below the
+#: "resumed": the last timing window's share of fresh cycles at least this fraction of the
 #: baseline run's median window (the baseline: its own). A fixed 90 % failed the baseline
-#: itself on a loaded day (its windows 75-92 %, 2026-11-25).
-RESUMED_DROP = 0.10
+#: itself on a loaded day (its windows 54-92 %, 2026-11-25), and so did "10 pp below".
+RESUMED_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -289,9 +290,9 @@ class Row:
 
 def commanding_at_end(fresh: np.ndarray, stopped: np.ndarray, reference: float) -> bool:
     """The controller commands at the end: its commands not stopped, and the last timing
-    window's fresh share at most RESUMED_DROP below ``reference``."""
+    window's fresh share at least RESUMED_SHARE of ``reference``."""
     return bool(len(fresh) and len(stopped) and stopped[-1] == 0
-                and fresh[-1] >= reference - RESUMED_DROP)
+                and fresh[-1] >= RESUMED_SHARE * reference)
 
 
 def judge(recording: Path | None, case: str, alive: bool, note: str,
