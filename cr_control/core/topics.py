@@ -42,8 +42,9 @@ QOS_DEPTH = 10
 #: Reader history of a controller's /joint_states (nodes/qos.py STATE_QOS). The history of
 #: a keyless topic is shared by its writers: a flood from a second publisher evicts the
 #: plant's states unless they are taken first. 2048 holds 0.2 s of a 10 kHz flood (the
-#: fuzz's 50 000 states came at ~4 kHz); memory is taken only as it fills. At 128, the
-#: plant's states were evicted whenever the starved controller fell ~30 ms behind.
+#: fuzz's 50 000 states came at ~4 kHz); memory is taken only as it fills. At 128 they
+#: were evicted whenever the starved controller fell ~30 ms behind (the flood still
+#: starves the 2 cores either way: docs/safety.md).
 STATE_DEPTH = 2048
 #: Depth of the writer history of the 1 kHz publishers (nodes/qos.py, PUBLISH_QOS).
 PUBLISH_DEPTH = 500
