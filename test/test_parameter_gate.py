@@ -13,6 +13,7 @@ import time
 
 import pytest
 import rclpy
+import rclpy.parameter
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
@@ -76,13 +77,15 @@ def test_request_bytes_reads_the_c_struct_as_the_message_says():
         assert request_bytes("names", address) is None      # too many entries: not walked
 
 
-@pytest.fixture
-def gated_node():
+@pytest.fixture(params=[False, True], ids=["wall_time", "sim_time"])
+def gated_node(request):
     """A node with one parameter, its services behind a gate, spun by an EventsExecutor on
-    a thread (as spin_nodes does); a client node in the same context."""
+    a thread (as spin_nodes does); a client node in the same context. With use_sim_time
+    and no /clock, as a lockstep node before its plant runs: the gate answers all the same."""
     context = Context()
     rclpy.init(context=context)
-    node = Node("crgate", context=context)
+    node = Node("crgate", context=context, parameter_overrides=[
+        rclpy.parameter.Parameter("use_sim_time", value=request.param)])
     node.declare_parameter("gain", 1.0)
     callback_threads = []
     for service in node.services:                       # record where callbacks run

@@ -53,6 +53,7 @@ from rcl_interfaces.srv import (
     SetParameters,
     SetParametersAtomically,
 )
+from rclpy.clock import Clock, ClockType
 from rclpy.guard_condition import GuardCondition
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
@@ -236,7 +237,10 @@ class ParameterGate:
         self._queue: deque = deque()
         # EventsExecutor takes no guard conditions ("Guard conditions not supported"): a
         # timer made now (it picks up no timer made later) polls the queue instead.
-        self._answer = node.create_timer(ANSWER_PERIOD_S, self._answer_queued)
+        # On the steady clock: a node on simulated time (use_sim_time) answers before its
+        # clock runs too.
+        self._answer = node.create_timer(ANSWER_PERIOD_S, self._answer_queued,
+                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._wake = GuardCondition(None, None, context=node.context)
         self._stopping = False
         #: Requests refused or dropped on their size, and when that was last logged.
