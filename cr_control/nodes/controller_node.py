@@ -167,6 +167,8 @@ class ControllerNode(LifecycleNode):
         self.active = False                   # lifecycle state "active": states are answered
         self.activations = 0
         self._held_state: tuple[bytes, bytes | None] | None = None  # the last one seen inactive
+        #: The last state that came before the plant's command interface did.
+        self._awaiting_interface: tuple[bytes, bytes | None] | None = None
         # Guards (module docstring): counts, the followed publisher, size bounds.
         self.states_foreign = self.source_handovers = self.inputs_oversized = self.states_skipped = 0
         self.sensor_faults = 0
@@ -301,6 +303,9 @@ class ControllerNode(LifecycleNode):
                 self.get_logger().info(f"the plant takes {INTERFACE_NOUNS[interface]}, "
                                        f"as {self.scheme} commands")
                 self._interface = "ok"
+                waiting, self._awaiting_interface = self._awaiting_interface, None
+                if waiting is not None:
+                    self._on_joint_state(*waiting)
             return
         if self._interface == "refused":
             return
@@ -557,7 +562,12 @@ class ControllerNode(LifecycleNode):
             self._foreign(sender)
             return
         if self._interface != "ok" and (self._interface == "refused" or self._plant_advertises()):
-            return      # refused, or the plant's interface is on its way: no command
+            if self._interface == "unknown" and self._pacer is not None:
+                # Lockstep: the plant waits for this state's answer (and republished the
+                # state only after lockstep_resend_s): answer it once the interface is known.
+                # In real time the next state comes within a cycle anyway.
+                self._awaiting_interface = (data, sender)
+            return      # refused, or the plant's interface is on its way: no command yet
         state = self._read_state(data)
         if state is None:
             self._unreadable(topics.JOINT_STATES)
