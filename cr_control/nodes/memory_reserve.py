@@ -15,14 +15,16 @@ another). With the heap below: 10.6 ms quiet, the two copies alone.
 What :func:`reserve` does (glibc only; elsewhere a no-op that says why):
 - ``mallopt(M_MMAP_MAX, 0)``: every allocation, however large, comes from the heap;
 - ``mallopt(M_TRIM_THRESHOLD, 1 GiB)``: freed heap memory stays with the process;
-- malloc ``RESERVE_BYTES``, touch every page, free it: later allocations of the main
+- malloc the reserve, touch every page, free it: later allocations of the main
   arena (the loop's thread, Python's objects) reuse those pages.
 
-``CR_CONTROL_MEMORY_RESERVE_MB`` sets the reserve's size (default 64; 0: none, glibc's
-defaults). Messages larger than the reserve still fault their excess pages in: the reserve covers
-what the node guards admit and the oversized inputs the fuzz sends, not every size. The
-cost: RESERVE_BYTES of resident memory per loop process, touched once at start (7-60 ms
-here, once).
+Opt-in: ``CR_CONTROL_MEMORY_RESERVE_MB=64`` (0 or unset: none, glibc's defaults). Off by
+default because the Panda row of ``cr_benchmark`` ran worse with it on a loaded day
+(2026-11-25, two single pairs each: -46.7 and -64.3 pp fresh commands against the echo
+pair with 64 MiB, -39.7 and -33.5 pp without, -26.7 to -43.8 pp before today's changes;
+the spread between pairs is as large as the differences, so the cause is not settled).
+Messages larger than the reserve still fault their excess pages in. The cost: the
+reserve's resident memory per loop process, touched once at start.
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ import ctypes
 import ctypes.util
 import os
 
-#: Bytes pre-faulted in each loop process: two copies of the fuzz's 18 MB JointState, or
-#: the three buffers (CDR, C struct, Python array) of an 8 MB parameter request, with room.
+#: Bytes pre-faulted in each loop process when asked for (64 MiB: two copies of the fuzz's
+#: 18 MB JointState, or the three buffers of an 8 MB parameter request, with room).
 RESERVE_BYTES = 64 << 20
 #: Environment variable: the reserve in MiB (0: none).
 RESERVE_VARIABLE = "CR_CONTROL_MEMORY_RESERVE_MB"
@@ -43,12 +45,12 @@ _PAGE = 4096
 
 
 def reserve_bytes() -> int:
-    """The reserve asked for: RESERVE_VARIABLE in MiB, else RESERVE_BYTES."""
+    """The reserve asked for: RESERVE_VARIABLE in MiB (0 if unset or not a number)."""
     text = os.environ.get(RESERVE_VARIABLE, "").strip()
     try:
-        return max(0, min(4096, int(text))) << 20 if text else RESERVE_BYTES
+        return max(0, min(4096, int(text))) << 20 if text else 0
     except ValueError:
-        return RESERVE_BYTES
+        return 0
 
 
 def reserve(size: int | None = None) -> str | None:
