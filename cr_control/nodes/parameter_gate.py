@@ -44,7 +44,7 @@ from collections import deque
 from collections.abc import Callable
 from contextlib import ExitStack, suppress
 
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterType, SetParametersResult
 from rcl_interfaces.srv import (
     DescribeParameters,
     GetParameters,
@@ -73,7 +73,6 @@ ANSWER_PERIOD_S = 0.02
 #: The gate's thread checks for a stop this often when nothing arrives (ns).
 WAIT_NS = 100_000_000
 RCL_RET_OK = 0
-RCL_RET_SERVICE_TAKE_FAILED = 601
 
 #: The services of rclpy's ParameterService: suffix -> (type, kind of its request).
 SERVICES = {
@@ -156,9 +155,14 @@ def request_bytes(kind: str, address: int) -> int | None:
     return total
 
 
-#: ParameterValue.type -> the field holding an array value (rcl_interfaces/msg/ParameterType).
-_ARRAY_FIELDS = {5: "byte_array_value", 6: "bool_array_value", 7: "integer_array_value",
-                 8: "double_array_value", 9: "string_array_value"}
+#: The array field of a ParameterValue of each array type (also read by ros_parameters).
+ARRAY_FIELDS = {
+    ParameterType.PARAMETER_BYTE_ARRAY: "byte_array_value",
+    ParameterType.PARAMETER_BOOL_ARRAY: "bool_array_value",
+    ParameterType.PARAMETER_INTEGER_ARRAY: "integer_array_value",
+    ParameterType.PARAMETER_DOUBLE_ARRAY: "double_array_value",
+    ParameterType.PARAMETER_STRING_ARRAY: "string_array_value",
+}
 
 
 def refusals(address: int, size: int | None,
@@ -175,7 +179,7 @@ def refusals(address: int, size: int | None,
     reasons = []
     for parameter in _parameters(address):
         name = ctypes.string_at(parameter.name.data, min(parameter.name.size, 256))
-        field = _ARRAY_FIELDS.get(parameter.value.type)
+        field = ARRAY_FIELDS.get(parameter.value.type)
         count = getattr(parameter.value, field).size if field else 0
         reason = explain(name.decode(errors="replace"), count) if explain else None
         reasons.append(reason or whole)
@@ -387,4 +391,5 @@ def install(node: Node, explain: Callable[[str, int], str | None] | None = None
     return gate
 
 
-__all__ = ["MAX_ENTRIES", "MAX_REQUEST_BYTES", "ParameterGate", "install", "refusals", "request_bytes"]
+__all__ = ["ARRAY_FIELDS", "MAX_ENTRIES", "MAX_REQUEST_BYTES", "ParameterGate", "install", "refusals",
+           "request_bytes"]

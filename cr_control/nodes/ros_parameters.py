@@ -63,16 +63,6 @@ _BUILTIN_PREFIX = "qos_overrides."
 #: held cycles (Controller._warn); the count in between is reported.
 REFUSED_WARN_EVERY_S = 5.0
 
-#: The array field of a ParameterValue of each array type.
-_ARRAY_FIELDS = {
-    ParameterType.PARAMETER_BYTE_ARRAY: "byte_array_value",
-    ParameterType.PARAMETER_BOOL_ARRAY: "bool_array_value",
-    ParameterType.PARAMETER_INTEGER_ARRAY: "integer_array_value",
-    ParameterType.PARAMETER_DOUBLE_ARRAY: "double_array_value",
-    ParameterType.PARAMETER_STRING_ARRAY: "string_array_value",
-}
-
-
 def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -248,7 +238,7 @@ def police_changes(node: Node, specs: Sequence[Param], apply: Callable[[str, Any
 
     def screen(msg: ParameterMsg) -> str | None:
         """Why ``msg`` is refused from what the request says (None: let rclpy handle it)."""
-        field = _ARRAY_FIELDS.get(msg.value.type)
+        field = parameter_gate.ARRAY_FIELDS.get(msg.value.type)
         reason = explain(msg.name, 0 if field is None else len(getattr(msg.value, field)))
         if reason is not None:
             known = msg.name in by_name or node.has_parameter(msg.name)
