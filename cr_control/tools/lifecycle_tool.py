@@ -29,7 +29,13 @@ import time
 
 from cr_control.core import topics
 from cr_control.core.ros_env import domain_id_arg, isolate_this_process
-from cr_control.tools.param_tool import TIMEOUT_S, _positive_seconds, call_service, full_node_name
+from cr_control.tools.param_tool import (
+    TIMEOUT_S,
+    _positive_seconds,
+    call_service,
+    full_node_name,
+    wait_for_service,
+)
 
 #: The transitions ``set`` takes (their labels in the standard lifecycle state machine).
 TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown")
@@ -53,6 +59,7 @@ class Lifecycle:
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
         self.timeout_s = timeout_s
+        self._clients: dict[str, object] = {}
 
     def close(self) -> None:
         import rclpy
@@ -63,7 +70,22 @@ class Lifecycle:
 
     def _call(self, srv_type, service: str, request):
         return call_service(self.node, self.executor, srv_type, service, request, self.timeout_s,
-                            what="its lifecycle services")
+                            what="its lifecycle services", client=self._client(srv_type, service))
+
+    def _client(self, srv_type, service: str):
+        """One client per service, kept: a new client must first be matched by discovery
+        (tens of ms on a loaded machine), which a live switch cannot wait for."""
+        if service not in self._clients:
+            self._clients[service] = self.node.create_client(srv_type, service)
+        return self._clients[service]
+
+    def prepare(self, *targets: str) -> None:
+        """Make and match the change_state clients of ``targets`` now, before they are needed."""
+        from lifecycle_msgs.srv import ChangeState
+
+        for target in targets:
+            wait_for_service(self.node, self.executor, self._client(
+                ChangeState, f"{target}/change_state"), self.timeout_s, "its lifecycle services")
 
     def state(self, target: str) -> str:
         """The node's current state label (unconfigured, inactive, active, finalized)."""
@@ -109,6 +131,7 @@ def switch(life: Lifecycle, old: str, new: str, at_s: float, handover_s: float) 
     """The live switch of the module docstring; prints each step."""
     if life.state(new) == "unconfigured":
         life.change(new, "configure")
+    life.prepare(old, new)
     print(f"{new} configured; switching at t = {at_s:g} s", flush=True)
     reached = life.wait_for_time(at_s)
     life.change(old, "deactivate")

@@ -74,18 +74,24 @@ def _positive_seconds(text: str) -> float:
     return value
 
 
-def call_service(node, executor, srv_type, service: str, request, timeout_s: float,
-                 what: str = "its parameter services"):
-    """``request`` to ``service``; TimeoutError if the service does not appear or does not
-    answer within ``timeout_s`` (each); ``what`` names the node's services in that message."""
-    client = node.create_client(srv_type, service)
+def wait_for_service(node, executor, client, timeout_s: float, what: str) -> None:
+    """Spin until ``client``'s service is matched; TimeoutError after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     while not client.service_is_ready():
         if time.monotonic() > deadline:
-            raise TimeoutError(f"no node {service.rpartition('/')[0]} on ROS_DOMAIN_ID "
+            raise TimeoutError(f"no node {client.srv_name.rpartition('/')[0]} on ROS_DOMAIN_ID "
                                f"{node.context.get_domain_id()} ({what} did not appear "
                                f"within {timeout_s:g} s; see --timeout)")
         executor.spin_once(timeout_sec=0.02)
+
+
+def call_service(node, executor, srv_type, service: str, request, timeout_s: float,
+                 what: str = "its parameter services", client=None):
+    """``request`` to ``service`` (through ``client`` if given, else a new one); TimeoutError
+    if the service does not appear or does not answer within ``timeout_s`` (each); ``what``
+    names the node's services in that message."""
+    client = client or node.create_client(srv_type, service)
+    wait_for_service(node, executor, client, timeout_s, what)
     future = client.call_async(request)
     deadline = time.monotonic() + timeout_s
     while not future.done():
