@@ -87,3 +87,6 @@ def test_commanding_at_the_end_is_judged_against_the_baselines_windows():
     assert not fuzz.commanding_at_end(np.array([0.9, 0.02]), running, reference=0.85)
     assert not fuzz.commanding_at_end(np.array([0.9, 0.4]), running, reference=0.97)   # < 48.5 %
     assert not fuzz.commanding_at_end(np.array([]), np.array([]), reference=0.85)
+    # The plant's closing report (17 cycles, 0 %) is not judged; a full window of 0 % is.
+    assert fuzz.commanding_at_end(np.array([0.9, 0.0]), running, 0.85, cycles=np.array([990, 17]))
+    assert not fuzz.commanding_at_end(np.array([0.0, 0.9]), running, 0.85, cycles=np.array([990, 17]))

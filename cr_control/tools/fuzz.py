@@ -58,6 +58,8 @@ SETTLE_S = 1.0
 #: baseline run's median window (the baseline: its own). A fixed 90 % failed the baseline
 #: itself on a loaded day (its windows 54-92 %, 2026-11-25), and so did "10 pp below".
 RESUMED_SHARE = 0.5
+#: A timing window of fewer cycles (the plant's closing report) is not judged.
+FULL_WINDOW_CYCLES = 100
 
 
 @dataclass(frozen=True)
@@ -288,9 +290,15 @@ class Row:
     fresh_median: float = math.nan
 
 
-def commanding_at_end(fresh: np.ndarray, stopped: np.ndarray, reference: float) -> bool:
+def commanding_at_end(fresh: np.ndarray, stopped: np.ndarray, reference: float,
+                      cycles: np.ndarray | None = None) -> bool:
     """The controller commands at the end: its commands not stopped, and the last timing
-    window's fresh share at least RESUMED_SHARE of ``reference``."""
+    window's fresh share at least RESUMED_SHARE of ``reference``. With the windows'
+    ``cycles``, the last window of at least FULL_WINDOW_CYCLES: the plant's closing report
+    covers the few cycles after the last full second (17 of them, 0 % fresh, in one run),
+    which says nothing about the controller."""
+    if cycles is not None and len(cycles) == len(fresh):
+        fresh = fresh[np.asarray(cycles) >= FULL_WINDOW_CYCLES]
     return bool(len(fresh) and len(stopped) and stopped[-1] == 0
                 and fresh[-1] >= RESUMED_SHARE * reference)
 
@@ -319,7 +327,8 @@ def judge(recording: Path | None, case: str, alive: bool, note: str,
     fresh = timing.get("window_fresh_share", np.zeros(0))
     stopped = session.status.get("commands_stopped", np.zeros(1))
     median = float(np.median(fresh)) if len(fresh) else math.nan
-    resumed = commanding_at_end(fresh, stopped, median if reference is None else reference)
+    resumed = commanding_at_end(fresh, stopped, median if reference is None else reference,
+                                timing.get("window_cycles"))
     miss = timing.get("window_max_missed_run", np.full(1, math.nan))
     counted = [f"{name} {int(np.nanmax(values[name]))}" for values, names in (
         (timing, PLANT_COUNTERS), (session.status, CONTROLLER_COUNTERS))
