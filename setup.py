@@ -26,7 +26,8 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    package_data={"cr_control.core": ["fastdds_profile.xml", "fastdds_profile_lockstep.xml"]},
+    package_data={"cr_control.core": ["fastdds_profile.xml", "fastdds_profile_lockstep.xml",
+                                     "fastdds_profile_visitor.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -7,8 +7,11 @@ watchdog). Two causes, both removed:
 - Fast DDS's shared-memory transport: the first message a participant sends to a
   newcomer's port waits for that port's health check, up to 333 ms (1 s if the newcomer
   is starved), holding the participant's send mutex, so the loop's own messages wait
-  too (334 ms round trips measured). User data now goes over UDP on the loopback
-  (cr_control/core/fastdds_profile.xml).
+  too (334 ms round trips measured). Our tools take a UDP-only profile
+  (cr_control/core/fastdds_profile_visitor.xml), so the loop never sends to them through
+  shared memory. The loop's own nodes talk over shared memory: UDP between them cost the
+  Panda row of cr_benchmark 0.3 ms of CPU a cycle, and plain joiners (these ten inherit
+  the node profile) are reached through shared memory either way.
 - CPU: a process starting beside the loop (imports, rclpy.init, a node's endpoints:
   0.3-1 s of CPU) took its fair share from the loop's processes on a loaded 2-core
   machine, whose ticks and answers then waited 100-470 ms in the run queue (measured with

@@ -165,6 +165,22 @@ def test_nodes_use_the_package_dds_profile_unless_the_user_chose_one(tmp_path, m
     assert not use_node_dds_profile(env) and env == {}
 
 
+def test_tools_listen_on_udp_only_and_the_loop_on_shared_memory(tmp_path, monkeypatch):
+    """A tool that joins (cr_param, cr_lifecycle) listens on UDP only, so the loop's nodes
+    never run the shared-memory port check on it; the loop's nodes keep Fast DDS's
+    transports (shared memory between them: UDP cost the Panda row 0.3 ms of CPU a cycle)."""
+    from cr_control.core.ros_env import VISITOR_DDS_PROFILE, use_visitor_dds_profile
+
+    monkeypatch.chdir(tmp_path)
+    env: dict[str, str] = {}
+    assert use_visitor_dds_profile(env) and env[DDS_PROFILE_VARIABLE] == str(VISITOR_DDS_PROFILE)
+    visitor = VISITOR_DDS_PROFILE.read_text()
+    assert "<udpv4>" in visitor and "<address>127.0.0.1</address>" in visitor
+    assert "defaultUnicastLocatorList" not in NODE_DDS_PROFILE.read_text().split("-->")[1]
+    mine = {DDS_PROFILE_VARIABLE: "/etc/my_profile.xml"}
+    assert not use_visitor_dds_profile(mine) and mine[DDS_PROFILE_VARIABLE] == "/etc/my_profile.xml"
+
+
 def _heartbeats_ns(profile) -> dict[str, int]:
     """Writer profile name -> heartbeat period (ns) of a Fast DDS profile file."""
     import xml.etree.ElementTree as ET

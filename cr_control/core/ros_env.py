@@ -32,6 +32,9 @@ LOCK_DIR = Path(tempfile.gettempdir()) / "cr_control-domains"
 #: see the file), and in lockstep (on every writer: the lockstep pacing waits for acks).
 NODE_DDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
 LOCKSTEP_DDS_PROFILE = Path(__file__).with_name("fastdds_profile_lockstep.xml")
+#: The profile of a tool that joins a running session for a moment (UDP only: the loop's
+#: nodes never send to it through shared memory; see the file).
+VISITOR_DDS_PROFILE = Path(__file__).with_name("fastdds_profile_visitor.xml")
 #: Where Fast DDS (2.x) looks for a profile: this variable, else this file in the cwd.
 DDS_PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
 DDS_PROFILE_IN_CWD = "DEFAULT_FASTRTPS_PROFILES.xml"
@@ -220,8 +223,17 @@ def use_node_dds_profile(env: dict[str, str] | None = None, lockstep: bool = Fal
     """Point Fast DDS at :data:`NODE_DDS_PROFILE` (``lockstep``: :data:`LOCKSTEP_DDS_PROFILE`)
     in ``env`` (default: os.environ) unless the user chose a profile (the variable set, or
     the file in the cwd); call it before ``rclpy.init``. True if the profile was set."""
+    return use_dds_profile(LOCKSTEP_DDS_PROFILE if lockstep else NODE_DDS_PROFILE, env)
+
+
+def use_visitor_dds_profile(env: dict[str, str] | None = None) -> bool:
+    """As :func:`use_node_dds_profile`, with :data:`VISITOR_DDS_PROFILE` (cr_param, cr_lifecycle)."""
+    return use_dds_profile(VISITOR_DDS_PROFILE, env)
+
+
+def use_dds_profile(profile: Path, env: dict[str, str] | None = None) -> bool:
+    """``profile`` for Fast DDS in ``env`` (default: os.environ), unless the user chose one."""
     env = os.environ if env is None else env
-    profile = LOCKSTEP_DDS_PROFILE if lockstep else NODE_DDS_PROFILE
     chosen = env.get(DDS_PROFILE_VARIABLE) or Path(DDS_PROFILE_IN_CWD).exists()
     if chosen or not profile.is_file():
         return False

@@ -28,7 +28,7 @@ import sys
 import time
 
 from cr_control.core import topics
-from cr_control.core.ros_env import domain_id_arg, isolate_this_process
+from cr_control.core.ros_env import domain_id_arg, isolate_this_process, use_visitor_dds_profile
 from cr_control.tools.param_tool import (
     TIMEOUT_S,
     _positive_seconds,
@@ -176,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cr_lifecycle: {exc}", file=sys.stderr)
         return 2
     isolate_this_process(args.domain_id)
+    use_visitor_dds_profile()   # never sent to through shared memory: no join stall
     life = Lifecycle(args.timeout)
     try:
         if args.command == "get":

@@ -23,7 +23,7 @@ import time
 import yaml
 
 from cr_control.core import ros_yaml
-from cr_control.core.ros_env import domain_id_arg, isolate_this_process
+from cr_control.core.ros_env import domain_id_arg, isolate_this_process, use_visitor_dds_profile
 
 #: Default of ``--timeout``: how long to wait for the node to appear and for each answer (s).
 TIMEOUT_S = 3.0
@@ -194,6 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cr_param: {exc}", file=sys.stderr)
         return 2
     isolate_this_process(args.domain_id)
+    use_visitor_dds_profile()   # never sent to through shared memory: no join stall
     try:
         return run(args)
     except KeyboardInterrupt:
