@@ -609,8 +609,6 @@ class ControllerNode(LifecycleNode):
 
         # -- messages out (timed; reported in the next published status) --
         out_start = time.perf_counter()
-        self.diagnostics.cycle(t, out_start - compute_start)
-        self.markers.cycle(t, out.reference)
         self._command.set_stamp(*stamp)
         self._command_out[:] = out.command
         self._command_bytes = self._command.message()
@@ -620,6 +618,9 @@ class ControllerNode(LifecycleNode):
                 self._forward_out[:] = out.command
                 self.forward_pub.publish(self._forward.message())
         self._answered = True
+        # after the command: the plant waits for it, diagnostics and markers do not
+        self.diagnostics.cycle(t, out_start - compute_start)
+        self.markers.cycle(t, out.reference)
         self._cycle += 1
         if self._cycle >= self._diagnostics_every:
             self._cycle = 0
