@@ -213,3 +213,22 @@ def test_params_files_are_read_from_ros_args_only():
     argv = ["node", "--params-file", "not_ros", "--ros-args", "--params-file", "a", "-p", "x:=1", "--",
             "--params-file", "b", "--ros-args", "-r", "__ns:=/x", "--params-file", "c", "--params-file"]
     assert params_files(argv) == ["a", "c"]
+
+
+# -- cr_param: the visitor profile ---------------------------------------------------------
+def test_cr_param_on_its_udp_only_profile_reaches_a_node_on_shared_memory(ros_env):
+    """Started as a user starts them (no Fast DDS profile chosen), the plant takes the node
+    profile (shared memory and UDP) and cr_param the visitor profile (UDP only, so the loop
+    never runs the shared-memory port check on it): they still talk."""
+    from ros_probe import start_node, stop_node
+
+    from cr_control.core.ros_env import DDS_PROFILE_VARIABLE
+
+    env = {k: v for k, v in ros_env.items() if k != DDS_PROFILE_VARIABLE}
+    plant = start_node([sys.executable, "-m", "cr_sim.plant_node"], env, "-p", "rate_hz:=500.0")
+    try:
+        got = cr_param(env, "--timeout", "30", "get", "/plant", "rate_hz")
+        assert got.returncode == 0, got.stderr
+        assert got.stdout.strip().endswith("500.0"), got.stdout
+    finally:
+        stop_node(plant)
