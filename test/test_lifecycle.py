@@ -159,6 +159,8 @@ def test_live_switch_lockstep(tmp_path):
     m = metrics(session)
     assert m["controller"] == "adaptive_impedance -> robust_adaptive_impedance"
     assert abs(m["switch_to_robust_adaptive_impedance_at_s"] - 1.0) < 0.2
+    # two controllers, two /joint_commands publishers: expected, not cross-talk
+    assert m["publishers_joint_commands"] == 2 and m["data_warnings"] == 0
     assert len(session.status["stamp"]) == 2000 and np.all(np.diff(session.status["stamp"]) > 0)
     lines: list[str] = []
     analyse(result, progress=lines.append)               # what cr_session prints, and plots

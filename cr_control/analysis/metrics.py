@@ -121,11 +121,14 @@ def metrics(session: Session) -> dict[str, Any]:
 
 
 def integrity(session: Session) -> dict[str, int]:
-    """Is the recording one session's own? Publishers per control topic (where known),
+    """Is the recording one session's own? Publishers per control topic (where known; a
+    live switch's controllers each have a /joint_commands publisher),
     stamps going backwards or repeating on the joint topics, and ``data_warnings``: how
     many of those look wrong (see :func:`integrity_warnings`)."""
     out = {f"publishers_{role}": session.publishers[role]
            for role in CONTROL_ROLES if role in session.publishers}
+    if len(session.controllers) > 1:    # a live switch: each controller has its publisher
+        out["publishers_expected_joint_commands"] = len(session.controllers)
     for role in ("joint_states", "joint_commands"):
         series = getattr(session, role)
         if series is not None:
@@ -140,7 +143,7 @@ def integrity_warnings(values: dict[str, Any]) -> list[str]:
     found = []
     for role in CONTROL_ROLES:
         count = values.get(f"publishers_{role}", 1)
-        if count > 1:
+        if count > values.get(f"publishers_expected_{role}", 1):
             found.append(f"{count} publishers on /{role}: another run shares this "
                          "ROS_DOMAIN_ID (cross-talk); its data is mixed in")
     for role in ("joint_states", "joint_commands"):
