@@ -43,7 +43,7 @@ PLANT = [sys.executable, "-m", "cr_sim.plant_node"]
 CONTROLLER = [sys.executable, "-m", "cr_control.nodes.controller_node", "adaptive_impedance"]
 #: A cycle may be this much later than in the run's quiet windows (the issue's 5 ms).
 LATE_MARGIN_MS = 5.0
-#: One state lost on the way (UDP on a loaded machine: the kernel drops a datagram) is
+#: One state lost on the way (a reader's full shared-memory port or a dropped datagram) is
 #: sent again at the writer's next heartbeat (10 ms, fastdds_profile.xml) and answered
 #: that much later, while the cycles around it have their commands; it happens without
 #: joins too. The round trips may exceed the baseline by this much more.
