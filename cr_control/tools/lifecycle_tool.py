@@ -39,8 +39,11 @@ from cr_control.tools.param_tool import (
 
 #: The transitions ``set`` takes (their labels in the standard lifecycle state machine).
 TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown")
-#: Default of ``--handover``: the plant's command_handover_cycles (50) at 1 kHz, and 10 ms more.
-HANDOVER_S = 0.06
+#: Default of ``--handover``: the plant's command_handover_cycles (50) at 1 kHz. The wait
+#: starts when the first node has answered that it stopped, so the plant has seen it
+#: silent at least this long when the second one's first command arrives (a real-time
+#: plant runs no faster than 1 kHz). The watchdog (100 cycles) bounds the whole gap.
+HANDOVER_S = 0.05
 
 
 class TransitionRefusedError(RuntimeError):
