@@ -18,7 +18,9 @@ What :func:`reserve` does (glibc only; elsewhere a no-op that says why):
 - malloc the reserve, touch every page, free it: later allocations of the main
   arena (the loop's thread, Python's objects) reuse those pages.
 
-Opt-in: ``CR_CONTROL_MEMORY_RESERVE_MB=64`` (0 or unset: none, glibc's defaults). Off by
+Opt-in: ``CR_CONTROL_MEMORY_RESERVE_MB=64`` (64 MiB: two copies of the fuzz's 18 MB
+JointState, or the three buffers of an 8 MB parameter request, with room; 0 or unset:
+none, glibc's defaults). Off by
 default because the Panda row of ``cr_benchmark`` ran worse with it on a loaded day
 (2026-11-25, two single pairs each: -46.7 and -64.3 pp fresh commands against the echo
 pair with 64 MiB, -39.7 and -33.5 pp without, -26.7 to -43.8 pp before today's changes;
@@ -33,9 +35,6 @@ import ctypes
 import ctypes.util
 import os
 
-#: Bytes pre-faulted in each loop process when asked for (64 MiB: two copies of the fuzz's
-#: 18 MB JointState, or the three buffers of an 8 MB parameter request, with room).
-RESERVE_BYTES = 64 << 20
 #: Environment variable: the reserve in MiB (0: none).
 RESERVE_VARIABLE = "CR_CONTROL_MEMORY_RESERVE_MB"
 #: glibc's mallopt parameters (malloc.h).
@@ -79,4 +78,4 @@ def reserve(size: int | None = None) -> str | None:
     return None
 
 
-__all__ = ["RESERVE_BYTES", "RESERVE_VARIABLE", "reserve", "reserve_bytes"]
+__all__ = ["RESERVE_VARIABLE", "reserve", "reserve_bytes"]
