@@ -28,6 +28,7 @@ import shlex
 import shutil
 import signal
 import subprocess
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -252,8 +253,9 @@ def test_the_readme_commands_run(tmp_path, ros_env, reproduce_quick):
             if not waited and _rank(command) >= ORDER.index("cr_param"):
                 readme.wait_for_nodes()
                 waited = True
-            print(f"README: {command}")
+            start = time.monotonic()
             runner(command)(readme, command)
+            print(f"README ({time.monotonic() - start:5.1f} s): {command}")
     finally:
         readme.stop_daemons()
 
