@@ -336,6 +336,26 @@ def test_a_node_behind_its_plant_answers_only_the_newest_state(node):
     assert len(node.published) == 2 and command.header.stamp.nanosec == 4_000_000
 
 
+def test_an_inactive_node_reads_one_state_and_answers_the_newest_at_activation(node, monkeypatch):
+    """Inactive (a live switch's second scheme): the first state is read (the law's time
+    origin), the later ones of that source are only kept, not deserialised; no command
+    while inactive; at activation the newest is read and answered."""
+    node.trigger_deactivate()
+    assert not node.active
+    reads = []
+    read = node._read_state
+    monkeypatch.setattr(node, "_read_state", lambda data: reads.append(data) or read(data))
+    for k in range(50):
+        node._on_joint_state(state(k), GID_A)
+    assert len(reads) == 1 and node.published == []
+    assert node.controller._t0 == pytest.approx(7.0)
+    node.trigger_activate()
+    assert len(reads) == 2 and len(node.published) == 1
+    assert deserialize_message(node.published[0], JointState).header.stamp.nanosec == 49_000_000
+    node._on_joint_state(state(50), GID_A)                    # active: every state read
+    assert len(reads) == 3 and len(node.published) == 2
+
+
 def test_a_wrench_beyond_max_sensor_force_is_a_sensor_fault(node, monkeypatch):
     warned = []
     monkeypatch.setattr(node.get_logger(), "warn", lambda msg, **_: warned.append(msg))

@@ -561,6 +561,13 @@ class ControllerNode(LifecycleNode):
         if new_source and entry - self._source_seen <= SOURCE_SILENCE_S:
             self._foreign(sender)
             return
+        if not self.active and not new_source and self._held_state is not None:
+            # Inactive with a state of this source already read (the law's time origin is
+            # set): only the newest is answered, at activation, and read then; an inactive
+            # node beside the active one costs the loop no deserialisation per cycle.
+            self._held_state = (data, sender)
+            self._source_seen = entry
+            return
         if self._interface != "ok" and (self._interface == "refused" or self._plant_advertises()):
             if self._interface == "unknown" and self._pacer is not None:
                 # Lockstep: the plant waits for this state's answer (and republished the
