@@ -81,9 +81,13 @@ def probe(ros_env):
     p.close()
 
 
-def test_nodes_joining_and_leaving_never_stall_the_loop(ros_env, probe):
+def run_session(ros_env, probe) -> tuple[list, int, int, str]:
+    """One real-time session with JOINERS nodes joining and leaving after the baseline
+    windows: (timing messages, the first window with joins, the window by which all had
+    left, the plant's log)."""
     timing: list = []
-    probe.node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, timing.append, 100)
+    subscription = probe.node.create_subscription(Float64MultiArray, topics.PLANT_TIMING,
+                                                  timing.append, 100)
     controller = start_node(CONTROLLER, ros_env)
     plant = start_node(PLANT, ros_env, "-p", f"duration:={DURATION_S}")
     joiners: list[subprocess.Popen] = []
@@ -108,7 +112,21 @@ def test_nodes_joining_and_leaving_never_stall_the_loop(ros_env, probe):
                 j.kill()
         _, plant_out = stop_node(plant)
         stop_node(controller)
+        probe.node.destroy_subscription(subscription)
     assert all(j.returncode == 0 for j in joiners), [j.stderr.read()[-500:] for j in joiners]
+    return timing, first_join, joined_until, plant_out
+
+
+def test_nodes_joining_and_leaving_never_stall_the_loop(ros_env, probe):
+    """See the module docstring. A session that safe-stopped before the first node joined
+    (a fresh-clone CI run, 2026-11-26: a 754-tick run without a command in the baseline
+    windows on a loaded machine) says nothing about joins: it is printed and the session is
+    run once more; a second one is judged whatever happened."""
+    timing, first_join, joined_until, plant_out = run_session(ros_env, probe)
+    if any(timing_field(m, "safe_stop") for m in timing[:first_join]):
+        print("the session safe-stopped before any node joined (not a join stall); once "
+              f"more. Its plant's log:\n{plant_out[-1500:]}")
+        timing, first_join, joined_until, plant_out = run_session(ros_env, probe)
 
     def field(i, name):
         return timing_field(timing[i], name)
