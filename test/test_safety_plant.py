@@ -121,17 +121,22 @@ def probe(ros_env):
     p.close()
 
 
+def effort_runs(efforts: list[tuple]) -> list[tuple[int, int]]:
+    """(length, index of the state that ends it) of every run of one effort but the last."""
+    runs, start = [], 0
+    for i in range(1, len(efforts)):
+        if efforts[i] != efforts[i - 1]:
+            runs.append((i - start, i))
+            start = i
+    return runs
+
+
 def describe_states(stamps: list[int], efforts: list[tuple], killed_ns: int) -> str:
     """Where the states received have their longest gap and their last runs of one effort
     before the kill (a failure's evidence)."""
     gaps = np.diff(stamps) * 1e-6
     i = int(np.argmax(gaps))
-    runs, start = [], 0
-    for k in range(1, len(efforts)):
-        if efforts[k] != efforts[k - 1]:
-            if stamps[k] <= killed_ns:
-                runs.append(k - start)
-            start = k
+    runs = [length for length, end in effort_runs(efforts) if stamps[end] <= killed_ns]
     return (f"longest gap between states received {gaps[i]:.1f} ms, from "
             f"{(stamps[i] - killed_ns) * 1e-6:+.1f} ms after the kill; the longest run of one "
             f"effort before the kill {max(runs, default=0)} states, the last ones {runs[-5:]}")
@@ -178,12 +183,7 @@ def test_killed_controller_leads_to_a_safe_stop_and_the_arm_stays_put(ros_env, p
         # the watchdog would have stopped it; once at rest the brake effort is constant).
         stamps = [s.header.stamp.sec * 1_000_000_000 + s.header.stamp.nanosec for s in states]
         efforts = [tuple(s.effort) for s in states]
-        run_start, runs = 0, []
-        for i in range(1, len(states)):
-            if efforts[i] != efforts[i - 1]:
-                if stamps[i] > killed_ns:
-                    runs.append((i - run_start, i))
-                run_start = i
+        runs = [(length, end) for length, end in effort_runs(efforts) if stamps[end] > killed_ns]
         # (3 states of slack for any the probe missed)
         long_runs = [run for run in runs if run[0] >= missed - 3]
         assert long_runs, (f"no run of one effort for {missed - 3}+ states after the kill; "
