@@ -150,16 +150,16 @@ def test_plant_node_reports_a_safe_stop_at_once_and_clears_it_on_resume(ros_env,
     """The plant node's hooks: each timing report is judged; a safe stop publishes ERROR at
     once (not at the next report); after resume the next report is no longer ERROR."""
     node = make_node()
-    node._publish_timing()
+    node._publish_timing(at_once=True)
     assert node.diagnostics.last.level == WARN            # no tick yet: no fresh command
     assert node.diagnostics.last.values["safe_stop"] == "0"
     node._engage_safe_stop(SAFE_STOP_WATCHDOG, "SAFE STOP: test")
     status = node.diagnostics.last
     assert status.level == ERROR and status.message.startswith("safe stop (watchdog)")
-    node._publish_timing()
+    node._publish_timing(at_once=True)
     assert node.diagnostics.last.level == ERROR           # it lasts
     node._resume()
-    node._publish_timing()
+    node._publish_timing(at_once=True)
     assert node.diagnostics.last.level == WARN and "safe stop" not in node.diagnostics.last.message
 
 

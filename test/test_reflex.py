@@ -44,7 +44,7 @@ def answer(node: PlantNode, **values) -> None:
 
 def timing(node: PlantNode) -> dict[str, float]:
     """The node's /plant/timing values as it publishes them now, by name."""
-    node._publish_timing()
+    node._publish_timing(at_once=True)
     return dict(zip(topics.PLANT_TIMING_FIELDS, node._timing_msg.data, strict=True))
 
 
