@@ -174,7 +174,9 @@ def test_which_processes_run_the_real_time_loop():
     assert not runs_realtime_loop(_Node())                      # a recorder, a tool
 
 
-PRIORITY_CHECK = """
+#: A process of the loop (one stub node; "veto": beside a lockstep plant) applying its
+#: scheduling, as spin_nodes does.
+LOOP_PROCESS = """
 import os, sys, threading
 from cr_control.nodes import realtime_priority as rp
 class Node:
@@ -182,6 +184,9 @@ class Node:
     def get_logger(self):
         return type("L", (), {"info": print, "warn": print})()
 rp.apply([Node()] + ([type("Lockstep", (), {"realtime_loop": False})()] if "veto" in sys.argv else []))
+"""
+
+PRIORITY_CHECK = LOOP_PROCESS + """
 later = []
 t = threading.Thread(target=lambda: later.append(os.sched_getscheduler(0)))
 t.start(); t.join()
@@ -205,3 +210,36 @@ def test_the_loop_process_runs_under_sched_fifo_and_its_new_threads_too(case):
     else:
         assert policy == [str(os.SCHED_FIFO), str(os.SCHED_FIFO), "50"], out
         assert "SCHED_FIFO priority 50" in out
+
+
+NICE_CHECK = LOOP_PROCESS + """
+later = []
+t = threading.Thread(target=lambda: later.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id())))
+t.start(); t.join()
+path = "/proc/self/autogroup"
+group = open(path).read().split() if os.path.exists(path) else ["-"]
+print("nice", os.getpriority(os.PRIO_PROCESS, 0), later[0], group[-1])
+"""
+
+
+@pytest.mark.parametrize("case", ["default", "disabled", "veto"])
+def test_the_loop_process_takes_the_loop_s_cpu_weight_for_every_thread_and_its_autogroup(case):
+    """In a process of its own, leading its session as cr_session starts nodes: by default
+    every thread (one started later too) and the autogroup at nice LOOP_NICE; nothing with
+    CR_CONTROL_LOOP_NICE=0 or beside a lockstep plant; without the permission, said and
+    left as it was."""
+    from cr_control.nodes.realtime_priority import LOOP_NICE
+
+    env = dict(os.environ)
+    env.pop("CR_CONTROL_REALTIME_PRIORITY", None)
+    env["CR_CONTROL_LOOP_NICE"] = "0" if case == "disabled" else ""
+    out = subprocess.run([sys.executable, "-c", NICE_CHECK, case], env=env, capture_output=True,
+                         text=True, timeout=60, start_new_session=True).stdout
+    nice = out.split("nice")[-1].split()
+    if case == "default" and "refused" in out:
+        assert nice[:2] == ["0", "0"], out
+        pytest.skip(f"no permission to lower nice here: {out.strip()}")
+    expected = str(LOOP_NICE) if case == "default" else "0"
+    assert nice[:2] == [expected, expected], out
+    if nice[2] != "-":                               # autogroups in this kernel
+        assert nice[2] == expected, out

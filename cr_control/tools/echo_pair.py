@@ -88,6 +88,11 @@ def joint_command(names: list[str], stamp=None) -> JointState:
 class EchoSource(Node):
     """Publishes plant-like state at ``rate_hz`` for ``duration`` wall seconds once an echo answers."""
 
+    #: The floor runs with the real-time loop's process settings (its CPU weight, the
+    #: pre-faulted heap, SCHED_FIFO when asked: cr_control.nodes.realtime_priority), so the
+    #: benchmark compares the software, not the scheduling.
+    realtime_loop = True
+
     def __init__(self, rate_hz: float = 1000.0, duration: float = 10.0,
                  wait_for_recorder: bool = False, timing_subscribers: int = 0,
                  names: list[str] | None = None, **kwargs):
@@ -201,6 +206,8 @@ class EchoSource(Node):
 
 class Echo(Node):
     """Answers each JointState with a JointState command of the same stamp (no math)."""
+
+    realtime_loop = True          # as EchoSource's
 
     def __init__(self, names: list[str] | None = None, **kwargs):
         super().__init__("echo", **kwargs)
