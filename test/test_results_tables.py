@@ -81,6 +81,19 @@ def test_block_renders_every_claim_of_a_chapter():
     assert "q1" not in text and text.endswith("<!-- claims:end chapter=3 -->")
 
 
+def test_a_diverged_run_is_printed_to_two_significant_digits():
+    """How far a diverged run grew before its guard stopped it is floating-point history
+    (797.3 and 796.3 N on two CPUs, same code): two digits; a run that did not diverge
+    keeps four."""
+    def row(status):
+        claim = {"chapter": "4", "claim": "c", "rule": "r", "verdict": "v",
+                 "measured": {"ss_error_N": 797.3, "f_max_N": [3683.0], "status": status}}
+        return rt.block([claim], "4").splitlines()[3]
+
+    assert "ss_error_N = 8e+02; f_max_N = [3.7e+03]; status = diverged" in row("diverged")
+    assert "ss_error_N = 797.3; f_max_N = [3683]; status = ok" in row("ok")
+
+
 def test_write_places_blocks_under_their_chapters_and_check_agrees():
     text = rt.write(CLAIMS, DOC)
     assert rt.differences(CLAIMS, text) == []

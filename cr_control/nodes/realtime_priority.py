@@ -86,8 +86,8 @@ def _nice() -> int:
 
 def use_loop_nice(nice: int = LOOP_NICE) -> str | None:
     """Every thread of this process at ``nice`` (threads started later inherit it) and, if
-    the process leads its session, its autogroup too; None if done, else why not (the
-    process is left as it was)."""
+    the process leads its session, its autogroup too; None if done, else why not (a
+    refused nice changes no thread: the permission is checked at the first)."""
     try:
         for tid in [int(t) for t in os.listdir("/proc/self/task")]:
             try:
