@@ -325,7 +325,6 @@ class PlantNode(Node):
         # the tick count when the oldest of it was queued or last ran.
         self._chores: deque[Callable[[], None]] = deque()
         self._chore_tick = 0
-        self._window_report: dict[str, float] = {}
         self._commander_wall = 0.0
         self._warned: set[str] = set()
         self._started = False
@@ -720,7 +719,7 @@ class PlantNode(Node):
         start = time.perf_counter()
         self._step()
         self._ahead_time = time.perf_counter() - start
-        self._run_chores(1)              # the idle slot until the next tick
+        self._run_chore()                # the idle slot until the next tick
 
     def _resend_if_stalled(self) -> None:
         if self.finished.done() or self.state_stamp is None:
@@ -786,7 +785,7 @@ class PlantNode(Node):
             return
         self._publish_state(*divmod(time.time_ns(), 1_000_000_000))
         if self._chores and self._ticks - self._chore_tick > CHORE_WAIT_TICKS:
-            self._run_chores(1)          # no step ahead came to run it (no command, safe stop)
+            self._run_chore()            # no step ahead came to run it (no command, safe stop)
 
     def _check_publishers(self) -> None:
         """Warn once if anyone but the controller commands, or anyone but us publishes states."""
@@ -801,9 +800,9 @@ class PlantNode(Node):
                     "this ROS_DOMAIN_ID or a rogue node is on the control loop; counted in "
                     f"{topics.PLANT_TIMING}"))
 
-    def _run_chores(self, count: int) -> None:
-        """Run up to ``count`` queued chores, oldest first."""
-        for _ in range(min(count, len(self._chores))):
+    def _run_chore(self) -> None:
+        """Run the oldest queued chore, if any."""
+        if self._chores:
             self._chores.popleft()()
         self._chore_tick = self._ticks
 
@@ -827,13 +826,16 @@ class PlantNode(Node):
         stamp = self.state_stamp * 1e-9 if self.state_stamp is not None else 0.0
         self._timing_msg.data = [stamp, *self.stats.report(now)]
         self.timing_pub.publish(self._timing_msg)
-        self._window_report = dict(zip(topics.PLANT_TIMING_FIELDS, self._timing_msg.data, strict=True))
+
+    def _window(self) -> dict[str, float]:
+        """The last /plant/timing report's values by name."""
+        return dict(zip(topics.PLANT_TIMING_FIELDS, self._timing_msg.data, strict=True))
 
     def _report_diagnostics(self) -> None:
-        self.diagnostics.report(self._window_report)
+        self.diagnostics.report(self._window())
 
     def _log_timing(self) -> None:
-        d = self._window_report
+        d = self._window()
         self.get_logger().info(
             f"t={self.plant.time:.1f} s rate={d['rate_hz']:.0f} Hz "
             f"fresh={100 * d['window_fresh_share']:.2f}% "
@@ -842,6 +844,7 @@ class PlantNode(Node):
             f"publish={d['publish_time_us']:.0f} us"
             + (f" SAFE STOP ({SAFE_STOP_REASONS[self.stats.safe_stop_reason]})" if self.safe_stop
                else ""))
+
 
 def main(args: list[str] | None = None) -> int:
     """Run the plant node (exit 1 with one line on stderr if it refuses to start)."""

@@ -41,7 +41,7 @@ showed no difference beyond their spread (docs/benchmark.md).
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from rclpy.node import Node
 
@@ -68,32 +68,32 @@ def runs_realtime_loop(node: Node) -> bool:
         return False
 
 
-def _priority() -> int:
-    text = os.environ.get(PRIORITY_VARIABLE, "")
+def _setting(variable: str, default: int, low: int, high: int) -> int:
+    """The integer in the environment ``variable`` clamped to [low, high]; ``default`` if
+    it is unset or not an integer."""
+    text = os.environ.get(variable, "")
     try:
-        return max(0, min(99, int(text))) if text else LOOP_PRIORITY
+        return max(low, min(high, int(text))) if text else default
     except ValueError:
-        return LOOP_PRIORITY
+        return default
 
 
-def _nice() -> int:
-    text = os.environ.get(NICE_VARIABLE, "")
-    try:
-        return max(-20, min(0, int(text))) if text else LOOP_NICE
-    except ValueError:
-        return LOOP_NICE
+def _every_thread(set_one: Callable[[int], None]) -> None:
+    """``set_one(tid)`` for every thread of this process (one that just ended is skipped)."""
+    for tid in [int(t) for t in os.listdir("/proc/self/task")]:
+        try:
+            set_one(tid)
+        except ProcessLookupError:
+            continue
 
 
 def use_loop_nice(nice: int = LOOP_NICE) -> str | None:
     """Every thread of this process at ``nice`` (threads started later inherit it) and, if
-    the process leads its session, its autogroup too; None if done, else why not (a
-    refused nice changes no thread: the permission is checked at the first)."""
+    the process leads its session, its autogroup too; None if done, else why not (the
+    process is left as it was)."""
     try:
-        for tid in [int(t) for t in os.listdir("/proc/self/task")]:
-            try:
-                os.setpriority(os.PRIO_PROCESS, tid, nice)
-            except ProcessLookupError:
-                continue                                        # a thread that just ended
+        os.setpriority(os.PRIO_PROCESS, 0, nice)                # this thread: may we?
+        _every_thread(lambda tid: os.setpriority(os.PRIO_PROCESS, tid, nice))
     except OSError as exc:                                      # no permission, not Linux
         return exc.strerror or str(exc)
     if os.getsid(0) == os.getpid():
@@ -113,14 +113,9 @@ def use_realtime_priority(priority: int = LOOP_PRIORITY) -> str | None:
     try:
         param = os.sched_param(priority)
         os.sched_setscheduler(0, os.SCHED_FIFO, param)          # this thread: may we?
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
+        _every_thread(lambda tid: os.sched_setscheduler(tid, os.SCHED_FIFO, param))
     except (OSError, AttributeError) as exc:                    # no permission, not Linux
         return getattr(exc, "strerror", None) or str(exc)
-    for tid in tids:
-        try:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
-        except ProcessLookupError:
-            continue                                            # a thread that just ended
     return None
 
 
@@ -132,7 +127,8 @@ def apply(nodes: Sequence[Node]) -> None:
     if not loop or any(getattr(n, "realtime_loop", None) is False for n in nodes):
         return          # a lockstep plant in the process (composed): it runs flat out
     logger = loop[0].get_logger()
-    priority, nice = _priority(), _nice()
+    priority = _setting(PRIORITY_VARIABLE, LOOP_PRIORITY, 0, 99)
+    nice = _setting(NICE_VARIABLE, LOOP_NICE, -20, 0)
     if priority == 0:
         if nice:
             why = use_loop_nice(nice)
