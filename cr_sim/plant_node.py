@@ -35,7 +35,9 @@ Safety (issue 7), modelled on libfranka:
   Position-interface plants get the URDF's position limits and velocity limit instead.
 - Watchdog (realtime only; lockstep waits for commands and resends instead): a tick
   with no new command since the previous one reuses the last command; after
-  ``watchdog_missed_cycles`` such ticks in a row the reaction is a **safe stop** (the
+  ``watchdog_missed_cycles`` such ticks in a row, or that many periods of wall time over
+  at least a tenth as many ticks (``WATCHDOG_WALL_MIN_SHARE``: ticks slowed down by
+  publishes blocked on a dead reader), the reaction is a **safe stop** (the
   plant's brakes, :meth:`~cr_sim.plants.base.Plant.safe_stop_command`: gravity held,
   joints damped to rest and held), ``hold`` (keep the last command) or ``disabled``. The
   safe stop is logged once with its reason, shows as ``safe_stop`` = 1 in /plant/timing
@@ -142,7 +144,9 @@ NODE_PARAMETERS = [
     Param("watchdog_missed_cycles", 100, "Realtime watchdog: consecutive ticks without a new "
           "command (the last one is reused meanwhile) before watchdog_reaction, >= 1. 100 = "
           "0.1 s at 1 kHz (libfranka: 20 on a real-time kernel): controller stalls of 20-60 ms "
-          "were seen on a loaded 2-core machine, and a false stop needs a manual resume.",
+          "were seen on a loaded 2-core machine, and a false stop needs a manual resume. Also "
+          "that many periods of wall time over at least a tenth of the ticks: a plant whose "
+          "ticks slowed down stops in time too.",
           "integer", read_only=True, bound=10000),      # 10 s at 1 kHz
     Param("watchdog_reaction", "safe_stop", "What the watchdog does: safe_stop (brakes: "
           "gravity held, joints damped to rest and held there, until resume is set), hold "
@@ -191,6 +195,11 @@ MAX_COMMAND_JOINTS = 64
 MAX_CATCH_UP_PERIODS = 20
 #: Realtime: a queued chore (housekeeping) waits at most this many ticks for an idle slot.
 CHORE_WAIT_TICKS = 2
+#: The watchdog also trips once no new command has come for ``watchdog_missed_cycles``
+#: periods of wall time over at least this share of its ticks (and 3): a plant whose
+#: ticks slowed down (its publishes blocked on a dead reader) still stops in about the
+#: watchdog's time, while one long tick of its own (a stall) does not trip it.
+WATCHDOG_WALL_MIN_SHARE = 0.1
 MAX_COMMAND_BYTES = len(cdr.Writer(cdr.joint_state, frame_id="f" * 255,
                                    name=["n" * 63] * MAX_COMMAND_JOINTS,
                                    **dict.fromkeys(("position", "velocity", "effort"),
@@ -307,6 +316,9 @@ class PlantNode(Node):
         self._armed = False
         self._new_command = False
         self._missed_run = 0
+        self._last_command_tick_at = 0.0                 # monotonic time of the tick that saw it
+        self._wall_min_ticks = max(3, round(WATCHDOG_WALL_MIN_SHARE * self._missed_limit))
+        self._watch_tripped = False
         self.safe_stop = False
         # Reflexes (both modes): one comparison per step for the force, a short loop for
         # the joints with a URDF velocity limit.
@@ -432,6 +444,7 @@ class PlantNode(Node):
         self.stats.safe_stop = 0.0
         self.stats.safe_stop_reason = SAFE_STOP_NONE
         self._missed_run = 0
+        self._watch_tripped = False
         self._armed = False      # re-armed by the next command; the brake torque is held till then
         self.get_logger().warn("resumed from safe stop on request: applying commands again")
 
@@ -730,22 +743,30 @@ class PlantNode(Node):
             self.get_logger().warn("no command for the last state: publishing it again")
             self._publish_state(*divmod(self.state_stamp, 1_000_000_000))
 
-    def _watch(self) -> None:
-        """Count ticks without a new command; react after watchdog_missed_cycles in a row."""
+    def _watch(self, now: float) -> None:
+        """Count ticks without a new command; react once after watchdog_missed_cycles in a
+        row, or after that many periods of wall time over at least ``_wall_min_ticks``
+        ticks (WATCHDOG_WALL_MIN_SHARE)."""
         if self._new_command:
             self._new_command = False
             self._armed = True
             self._missed_run = 0
+            self._last_command_tick_at = now
+            self._watch_tripped = False
             return
         if not self._armed:
             return
         run = self._missed_run = self._missed_run + 1
         if run > self.stats.window_max_missed_run:
             self.stats.window_max_missed_run = run
-        if run != self._missed_limit or self._watchdog == "disabled":
+        silent = now - self._last_command_tick_at
+        limit = self._missed_limit
+        due = run >= limit or (run >= self._wall_min_ticks and silent >= limit * self.period)
+        if not due or self._watch_tripped or self._watchdog == "disabled":
             return
-        reason = (f"no new command for {run} consecutive cycles "
-                  f"({run * self.period * 1e3:.0f} ms; watchdog_missed_cycles {self._missed_limit})")
+        self._watch_tripped = True
+        reason = (f"no new command for {run} consecutive cycles in {silent * 1e3:.0f} ms "
+                  f"(watchdog_missed_cycles {limit}: {limit * self.period * 1e3:.0f} ms)")
         if self._watchdog == "hold":
             self.get_logger().warn(f"watchdog: {reason}: holding the last command "
                                    "(watchdog_reaction hold)", throttle_duration_sec=5.0)
@@ -761,7 +782,7 @@ class PlantNode(Node):
         fresh = self.command_stamp is not None and self.command_stamp == self.state_stamp
         if self._resume_requested:
             self._resume()
-        self._watch()
+        self._watch(now)
         start = time.perf_counter()
         # Whole periods, the rest carried to the next tick: every step has the same dt
         # (an LTI plant's exact discretisation is then computed once, not every tick:

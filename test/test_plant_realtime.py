@@ -131,3 +131,47 @@ def test_the_second_report_is_done_one_chore_per_idle_slot_never_in_one_callback
     node.lockstep = True
     node._publish_timing()                         # lockstep: no real-time slot to wait for
     assert len(published) == 2
+
+
+class _Clock:
+    """A stand-in for time.monotonic, moved by hand."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def slow_ticks(node: PlantNode, clock: _Clock, count: int, spacing_s: float) -> None:
+    """``count`` ticks ``spacing_s`` apart by ``clock`` (a plant whose publishes block)."""
+    for _ in range(count):
+        clock.now += spacing_s
+        node._tick()
+
+
+def test_the_watchdog_trips_on_wall_time_when_the_ticks_slow_down(node, monkeypatch):
+    """A plant ticking at 33 Hz (publishes blocked on a dead reader) after its controller's
+    last command: the safe stop comes after watchdog_missed_cycles periods of wall time
+    (100 ms here: tick 10 at 30 ms apart, WATCHDOG_WALL_MIN_SHARE of the 100), not after
+    100 ticks (3 s). One long tick of the plant's own, answered at once, trips nothing."""
+    import cr_sim.plant_node as plant_node
+
+    clock = _Clock()
+    monkeypatch.setattr(plant_node.time, "monotonic", clock)
+    assert node._missed_limit == 100 and node._wall_min_ticks == 10
+    node._last_tick = clock.now
+    slow_ticks(node, clock, 1, PERIOD)
+    answer(node, [0.1, 0.0])
+    slow_ticks(node, clock, 1, PERIOD)               # the tick sees the command: armed
+
+    slow_ticks(node, clock, 1, 0.5)                  # the plant's own 0.5 s stall ...
+    answer(node, [0.1, 0.0])                         # ... answered at once
+    slow_ticks(node, clock, 1, PERIOD)
+    assert not node.safe_stop and node._missed_run == 0
+
+    slow_ticks(node, clock, 9, 0.03)                 # the controller is gone
+    assert not node.safe_stop                        # 270 ms, but 9 ticks < 10
+    slow_ticks(node, clock, 1, 0.03)
+    assert node.safe_stop and node._missed_run == 10
+    assert node.stats.safe_stop_reason == 1          # the watchdog
