@@ -241,6 +241,27 @@ def unlimited_joints(plant: Plant, limiter: CommandLimiter) -> list[str]:
             if lo == -np.inf and hi == np.inf]
 
 
+def warm_up(spare: Plant, period: float) -> None:
+    """Run a spare plant of the node's scenario through what ticks and a safe stop call
+    (steps, measurement, sensors, reflex checks, true contact wrench, brakes), so that the
+    real plant's first tick does not pay for loading its compiled kernels: the Panda's
+    first tick took 25-30 ms (numba's cache, and numpy.ma imported by numba's typeof), the
+    largest of the late ticks that cost its first second ~20 ticks (2026-11-26)."""
+    command = initial_command(spare)
+    for _ in range(2):
+        spare.step(command, period)
+    spare.measurement()
+    if spare.sensor_fields:                   # published only then (one plant keeps an array)
+        spare.sensors()
+    spare.contact_force_magnitude()
+    spare.true_velocity()
+    truth = getattr(spare, "contact_wrench", None)
+    if callable(truth):
+        truth()
+    spare.begin_safe_stop()
+    spare.step(np.asarray(spare.safe_stop_command(), dtype=float), period)
+
+
 def initial_command(plant: Plant) -> np.ndarray:
     """What the plant holds before the first command: its own held input where it has one
     (``plant.held``; the ch. 4 plant starts in equilibrium with delta_c = delta), else the
@@ -277,13 +298,16 @@ class PlantNode(Node):
         for name in ("watchdog_missed_cycles", "command_handover_cycles", "contact_wrench_every"):
             if self.settings[name] < 1:
                 raise ParameterError(f"parameter {name} must be >= 1")
-        self.plant = factory(declare(self, specs))
+        values = declare(self, specs)
+        self.plant = factory(values)
         police_changes(self, [SCENARIO_PARAMETER, *NODE_PARAMETERS, *specs], self._on_parameter)
         self.period = 1.0 / self.settings["rate_hz"]
         self.lockstep = self.settings["mode"] == "lockstep"
-        # Realtime: this process's threads run under SCHED_FIFO (spin_nodes; issue 25: a
-        # process starting beside the loop delayed ticks 100-470 ms on a loaded machine).
+        # Realtime: this process runs at the real-time loop's CPU weight (spin_nodes;
+        # cr_control.nodes.realtime_priority), and its first tick is not its first step.
         self.realtime_loop = not self.lockstep
+        if self.realtime_loop:
+            warm_up(factory(values), self.period)
         self.joint_names = list(self.plant.joint_names)
         self.command_names = tuple(self.plant.command_joints)
         self.plant.brake_damping = self.settings["brake_damping"]
@@ -368,6 +392,7 @@ class PlantNode(Node):
         self.diagnostics = PlantDiagnostics(self, self.scenario, self.settings["rate_hz"],
                                             not self.lockstep, SAFE_STOP_REASONS)
         self.markers = PlantMarkers(self, self.plant)    # /plant/markers, ~30 Hz (issue 22)
+        self.markers.warm_up()
         self._pacer = ReaderPacer(self, [self.state_pub, self.wrench_pub, self.sensors_pub,
                                          self.clock_pub, self.contact_pub])   # used in lockstep
         self._timing_msg = topics.labelled_array(Float64MultiArray, MultiArrayDimension,

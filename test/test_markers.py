@@ -179,3 +179,37 @@ def test_foxglove_layout_plots_the_fields_it_names():
     scene = layout["configById"]["3D!crscene"]
     assert set(scene["topics"]) == {topics.PLANT_MARKERS, topics.markers_topic("adaptive_impedance")}
     assert {p["value"].split(".")[0] for p in paths} == {topics.WRENCH, "/adaptive_impedance/status"}
+
+
+def test_plant_markers_serialize_every_layout_before_the_loop(ros_env):
+    """PlantMarkers.warm_up serializes every layout tick sends (surface or not, force arrow
+    or its deletion): driving the compliant plane into and out of contact for more than
+    SURFACE_EVERY publishes makes no new one (each first serialization took ~3 ms of a
+    1 kHz tick)."""
+    import rclpy
+    from rclpy.context import Context
+
+    from cr_sim.plant_markers import PlantMarkers
+
+    context = Context()
+    rclpy.init(context=context, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    node = rclpy.create_node("markers_probe", context=context)
+    try:
+        plant = make_plant("compliant_plane")
+        markers = PlantMarkers(node, plant)
+        markers.warm_up()
+        prepared = set(markers.pub._layouts)
+        assert len(prepared) == 4
+        sent = []
+        markers.pub.pub.publish = lambda data: sent.append(len(data))
+        push, pull = np.array([20.0, 20.0]), np.array([-20.0, -20.0])
+        for k in range(2 * SURFACE_EVERY + 2):
+            for _ in range(34):                    # a marker period (33.3 ms) on
+                plant.step(push if k % 4 < 2 else pull, 1e-3)
+            markers.tick(plant.time, int(plant.time), 0)
+        assert len(sent) == 2 * SURFACE_EVERY + 2
+        assert len(set(sent)) == 4                   # all four layouts were sent ...
+        assert set(markers.pub._layouts) == prepared  # ... and none was new
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)

@@ -204,6 +204,16 @@ class MarkerPublisher:
              points: Sequence[np.ndarray | None], sec: int, nanosec: int) -> None:
         """Publish ``markers`` stamped ``sec.nanosec``, marker i at ``positions[i]`` with
         ``points[i]`` ((k, 3), or None for none)."""
+        layout = self.prepare(markers, points)
+        values = np.concatenate([part for pos, pts in zip(positions, points, strict=True)
+                                 for part in ((pos,) if pts is None else (pos, pts.ravel()))])
+        self.pub.publish(layout.fill(values, sec, nanosec))
+        self.published += 1
+
+    def prepare(self, markers: Sequence[Marker], points: Sequence[np.ndarray | None]) -> MarkerBytes:
+        """The layout of ``markers`` with as many ``points`` each, serialized now if it is
+        new (~3 ms for a 120-point trail here): call it at start-up for every layout the
+        loop will send, so that no 1 kHz cycle pays for a first one."""
         counts = tuple(0 if p is None else len(p) for p in points)
         key = (*map(id, markers), *counts)
         layout = self._layouts.get(key)
@@ -211,10 +221,7 @@ class MarkerPublisher:
             if len(self._layouts) >= MAX_LAYOUTS:
                 self._layouts.clear()
             layout = self._layouts[key] = MarkerBytes(markers, counts)
-        values = np.concatenate([part for pos, pts in zip(positions, points, strict=True)
-                                 for part in ((pos,) if pts is None else (pos, pts.ravel()))])
-        self.pub.publish(layout.fill(values, sec, nanosec))
-        self.published += 1
+        return layout
 
 
 class ControllerMarkers:
@@ -230,6 +237,8 @@ class ControllerMarkers:
         self.next_t = self.pub.next_t if self.pub is not None else float("inf")
         self.trail = Trail("desired_path", frame, 0.004, ORANGE)
         self.now = solid("desired", Marker.SPHERE, frame, (0.0, 0.0, 0.0), (0.02,) * 3, ORANGE)
+        if self.pub is not None:                      # its one layout, before the loop
+            self.pub.prepare([self.trail.marker, self.now], [np.zeros((self.trail.size, 3)), None])
 
     def cycle(self, t: float, reference: Sequence[float]) -> None:
         """Per control cycle (``t``: the state's stamp, s): one comparison unless due. Hot path."""
