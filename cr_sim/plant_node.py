@@ -36,8 +36,8 @@ Safety (issue 7), modelled on libfranka:
 - Watchdog (realtime only; lockstep waits for commands and resends instead): a tick
   with no new command since the previous one reuses the last command; after
   ``watchdog_missed_cycles`` such ticks in a row, or that many periods of wall time over
-  at least a tenth as many ticks (``WATCHDOG_WALL_MIN_SHARE``: ticks slowed down by
-  publishes blocked on a dead reader), the reaction is a **safe stop** (the
+  at least a tenth as many ticks (:mod:`cr_sim.watchdog`: ticks slowed down by publishes
+  blocked on a dead reader), the reaction is a **safe stop** (the
   plant's brakes, :meth:`~cr_sim.plants.base.Plant.safe_stop_command`: gravity held,
   joints damped to rest and held), ``hold`` (keep the last command) or ``disabled``. The
   safe stop is logged once with its reason, shows as ``safe_stop`` = 1 in /plant/timing
@@ -124,6 +124,7 @@ from cr_sim.loop_stats import (
 from cr_sim.plant_markers import PlantMarkers
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS
+from cr_sim.watchdog import Watchdog
 
 NODE_PARAMETERS = [
     Param("mode", "realtime", "realtime: wall-clock timer; lockstep: step on each command.",
@@ -195,11 +196,6 @@ MAX_COMMAND_JOINTS = 64
 MAX_CATCH_UP_PERIODS = 20
 #: Realtime: a queued chore (housekeeping) waits at most this many ticks for an idle slot.
 CHORE_WAIT_TICKS = 2
-#: The watchdog also trips once no new command has come for ``watchdog_missed_cycles``
-#: periods of wall time over at least this share of its ticks (and 3): a plant whose
-#: ticks slowed down (its publishes blocked on a dead reader) still stops in about the
-#: watchdog's time, while one long tick of its own (a stall) does not trip it.
-WATCHDOG_WALL_MIN_SHARE = 0.1
 MAX_COMMAND_BYTES = len(cdr.Writer(cdr.joint_state, frame_id="f" * 255,
                                    name=["n" * 63] * MAX_COMMAND_JOINTS,
                                    **dict.fromkeys(("position", "velocity", "effort"),
@@ -335,14 +331,9 @@ class PlantNode(Node):
         self._order_cache: tuple[tuple[str, ...], list[int] | None] = ((), None)
         self._position_interface = self.plant.command_interface == "position"
         # Watchdog (realtime): armed by the first command.
-        self._watchdog = "disabled" if self.lockstep else self.settings["watchdog_reaction"]
-        self._missed_limit = self.settings["watchdog_missed_cycles"]
-        self._armed = False
+        self._watchdog_reaction = "disabled" if self.lockstep else self.settings["watchdog_reaction"]
+        self.watchdog = Watchdog(self.settings["watchdog_missed_cycles"], self.period)
         self._new_command = False
-        self._missed_run = 0
-        self._last_command_tick_at = 0.0                 # monotonic time of the tick that saw it
-        self._wall_min_ticks = max(3, round(WATCHDOG_WALL_MIN_SHARE * self._missed_limit))
-        self._watch_tripped = False
         self.safe_stop = False
         # Reflexes (both modes): one comparison per step for the force, a short loop for
         # the joints with a URDF velocity limit.
@@ -443,8 +434,9 @@ class PlantNode(Node):
             + ("" if list(self.command_names) == self.joint_names
                else f" (commanded {list(self.command_names)})")
             + f", command limits {self.limiter.lower}..{self.limiter.upper}, "
-            f"watchdog {self._watchdog}"
-            + ("" if self._watchdog == "disabled" else f" after {self._missed_limit} missed cycles")
+            f"watchdog {self._watchdog_reaction}"
+            + ("" if self._watchdog_reaction == "disabled"
+               else f" after {self.watchdog.missed_limit} missed cycles")
             + f", reflexes at contact force > {self._max_force:g} N"
             + "".join(f", |{name}'| > {limit:g}" for _, limit, name in self._velocity_limits)
             + "; waiting for a controller")
@@ -468,9 +460,7 @@ class PlantNode(Node):
         self.safe_stop = False
         self.stats.safe_stop = 0.0
         self.stats.safe_stop_reason = SAFE_STOP_NONE
-        self._missed_run = 0
-        self._watch_tripped = False
-        self._armed = False      # re-armed by the next command; the brake torque is held till then
+        self.watchdog.disarm()   # re-armed by the next command; the brake torque is held till then
         self.get_logger().warn("resumed from safe stop on request: applying commands again")
 
     # -- start and stop -------------------------------------------------------------
@@ -769,30 +759,14 @@ class PlantNode(Node):
             self._publish_state(*divmod(self.state_stamp, 1_000_000_000))
 
     def _watch(self, now: float) -> None:
-        """Count ticks without a new command; react once after watchdog_missed_cycles in a
-        row, or after that many periods of wall time over at least ``_wall_min_ticks``
-        ticks (WATCHDOG_WALL_MIN_SHARE)."""
-        if self._new_command:
-            self._new_command = False
-            self._armed = True
-            self._missed_run = 0
-            self._last_command_tick_at = now
-            self._watch_tripped = False
+        """Tell the watchdog whether this tick saw a new command; react when it says so."""
+        new, self._new_command = self._new_command, False
+        reason = self.watchdog.tick(now, new)
+        if self.watchdog.run > self.stats.window_max_missed_run:
+            self.stats.window_max_missed_run = self.watchdog.run
+        if reason is None or self._watchdog_reaction == "disabled":
             return
-        if not self._armed:
-            return
-        run = self._missed_run = self._missed_run + 1
-        if run > self.stats.window_max_missed_run:
-            self.stats.window_max_missed_run = run
-        silent = now - self._last_command_tick_at
-        limit = self._missed_limit
-        due = run >= limit or (run >= self._wall_min_ticks and silent >= limit * self.period)
-        if not due or self._watch_tripped or self._watchdog == "disabled":
-            return
-        self._watch_tripped = True
-        reason = (f"no new command for {run} consecutive cycles in {silent * 1e3:.0f} ms "
-                  f"(watchdog_missed_cycles {limit}: {limit * self.period * 1e3:.0f} ms)")
-        if self._watchdog == "hold":
+        if self._watchdog_reaction == "hold":
             self.get_logger().warn(f"watchdog: {reason}: holding the last command "
                                    "(watchdog_reaction hold)", throttle_duration_sec=5.0)
             return

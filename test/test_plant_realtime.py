@@ -155,13 +155,13 @@ def slow_ticks(node: PlantNode, clock: _Clock, count: int, spacing_s: float) -> 
 def test_the_watchdog_trips_on_wall_time_when_the_ticks_slow_down(node, monkeypatch):
     """A plant ticking at 33 Hz (publishes blocked on a dead reader) after its controller's
     last command: the safe stop comes after watchdog_missed_cycles periods of wall time
-    (100 ms here: tick 10 at 30 ms apart, WATCHDOG_WALL_MIN_SHARE of the 100), not after
+    (100 ms here: tick 10 at 30 ms apart, watchdog.WALL_MIN_SHARE of the 100), not after
     100 ticks (3 s). One long tick of the plant's own, answered at once, trips nothing."""
     import cr_sim.plant_node as plant_node
 
     clock = _Clock()
     monkeypatch.setattr(plant_node.time, "monotonic", clock)
-    assert node._missed_limit == 100 and node._wall_min_ticks == 10
+    assert node.watchdog.missed_limit == 100 and node.watchdog.wall_min_ticks == 10
     node._last_tick = clock.now
     slow_ticks(node, clock, 1, PERIOD)
     answer(node, [0.1, 0.0])
@@ -170,12 +170,12 @@ def test_the_watchdog_trips_on_wall_time_when_the_ticks_slow_down(node, monkeypa
     slow_ticks(node, clock, 1, 0.5)                  # the plant's own 0.5 s stall ...
     answer(node, [0.1, 0.0])                         # ... answered at once
     slow_ticks(node, clock, 1, PERIOD)
-    assert not node.safe_stop and node._missed_run == 0
+    assert not node.safe_stop and node.watchdog.run == 0
 
     slow_ticks(node, clock, 9, 0.03)                 # the controller is gone
     assert not node.safe_stop                        # 270 ms, but 9 ticks < 10
     slow_ticks(node, clock, 1, 0.03)
-    assert node.safe_stop and node._missed_run == 10
+    assert node.safe_stop and node.watchdog.run == 10
     assert node.stats.safe_stop_reason == 1          # the watchdog
 
 
@@ -225,3 +225,22 @@ def test_a_realtime_plant_loads_its_kernels_before_its_first_tick(ros_env, robot
     loaded_before, loaded_by_the_tick = run.stdout.strip().splitlines()[-1].split(" ", 1)
     assert int(loaded_before) > 0                    # the plant has kernels, loaded already
     assert loaded_by_the_tick == "[]"
+
+
+def test_the_watchdog_counts_ticks_and_wall_time_and_says_so_once():
+    """cr_sim.watchdog without a node: unarmed until the first command; 100 quick ticks
+    trip it once; 10 ticks 30 ms apart trip it (the wall-time rule); 9 do not; a command
+    and a disarm start over."""
+    from cr_sim.watchdog import Watchdog
+
+    dog = Watchdog(100, 1e-3)
+    assert all(dog.tick(t * 1e-3, False) is None for t in range(500))      # not armed
+    assert dog.tick(1.0, True) is None
+    reasons = [dog.tick(1.0 + k * 1e-3, False) for k in range(1, 201)]
+    assert [k for k, r in enumerate(reasons, 1) if r] == [100]             # once, at 100
+    assert "100 consecutive cycles in 100 ms" in reasons[99]
+    dog.tick(2.0, True)
+    assert [dog.tick(2.0 + 0.03 * k, False) for k in range(1, 10)] == [None] * 9
+    assert "10 consecutive cycles in 300 ms" in dog.tick(2.3, False)
+    dog.disarm()
+    assert dog.run == 0 and dog.tick(9.0, False) is None                   # until a command
