@@ -35,8 +35,8 @@ Safety (issue 7), modelled on libfranka:
   Position-interface plants get the URDF's position limits and velocity limit instead.
 - Watchdog (realtime only; lockstep waits for commands and resends instead): a tick
   with no new command since the previous one reuses the last command; after
-  ``watchdog_missed_cycles`` such ticks in a row, or that many periods of wall time over
-  at least a tenth as many ticks (:mod:`cr_sim.watchdog`: ticks slowed down by publishes
+  ``watchdog_missed_cycles`` such ticks in a row, or twice that many periods of wall time
+  over at least a tenth as many ticks (:mod:`cr_sim.watchdog`: ticks slowed down by publishes
   blocked on a dead reader), the reaction is a **safe stop** (the
   plant's brakes, :meth:`~cr_sim.plants.base.Plant.safe_stop_command`: gravity held,
   joints damped to rest and held), ``hold`` (keep the last command) or ``disabled``. The
@@ -146,7 +146,7 @@ NODE_PARAMETERS = [
           "command (the last one is reused meanwhile) before watchdog_reaction, >= 1. 100 = "
           "0.1 s at 1 kHz (libfranka: 20 on a real-time kernel): controller stalls of 20-60 ms "
           "were seen on a loaded 2-core machine, and a false stop needs a manual resume. Also "
-          "that many periods of wall time over at least a tenth of the ticks: a plant whose "
+          "twice that many periods of wall time over at least a tenth of the ticks: a plant whose "
           "ticks slowed down stops in time too.",
           "integer", read_only=True, bound=10000),      # 10 s at 1 kHz
     Param("watchdog_reaction", "safe_stop", "What the watchdog does: safe_stop (brakes: "

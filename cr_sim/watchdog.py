@@ -2,18 +2,23 @@
 issue 25): ticks without a new command counted, the reaction said once per silence.
 
 The reaction is due after ``watchdog_missed_cycles`` such ticks in a row, or once no new
-command has come for that many periods of wall time over at least
-:data:`WALL_MIN_SHARE` as many ticks (3 at least). The second rule is for a plant whose
-ticks slowed down: a fresh-clone CI run (2026-11-26) saw a plant tick at ~90 Hz after its
+command has come for :data:`WALL_FACTOR` times that many periods of wall time over at
+least :data:`WALL_MIN_SHARE` as many ticks (3 at least). The second rule is a backstop
+for a plant whose ticks slowed down: a fresh-clone CI run (2026-11-26) saw a plant tick at ~90 Hz after its
 controller's SIGKILL (its publishes blocked on the dead reader), so that 300 ticks took
-3.3 s. One long tick of the plant's own (a stall), answered at once, trips nothing.
+3.3 s. One long tick of the plant's own (a stall), answered at once, trips nothing, and a
+plant that only loses a few ticks reaches the tick count first: at a factor of 1 a CI run
+braked after 295 ticks of a 300-tick watchdog (300 ms over 295 ticks), earlier than the
+count the parameter states.
 What the reaction is (a safe stop, holding the last command) is the node's to choose.
 """
 
 from __future__ import annotations
 
-#: The wall-time rule needs at least this share of ``missed_limit`` ticks (and 3).
+#: The wall-time rule needs at least this share of ``missed_limit`` ticks (and 3) ...
 WALL_MIN_SHARE = 0.1
+#: ... and this many times ``missed_limit`` periods of wall time.
+WALL_FACTOR = 2.0
 
 
 class Watchdog:
@@ -43,7 +48,8 @@ class Watchdog:
         self.run += 1
         silent = now - self._last_command_at
         limit = self.missed_limit
-        due = self.run >= limit or (self.run >= self.wall_min_ticks and silent >= limit * self.period)
+        due = self.run >= limit or (self.run >= self.wall_min_ticks
+                                      and silent >= WALL_FACTOR * limit * self.period)
         if not due or self._tripped:
             return None
         self._tripped = True

@@ -154,9 +154,9 @@ def slow_ticks(node: PlantNode, clock: _Clock, count: int, spacing_s: float) -> 
 
 def test_the_watchdog_trips_on_wall_time_when_the_ticks_slow_down(node, monkeypatch):
     """A plant ticking at 33 Hz (publishes blocked on a dead reader) after its controller's
-    last command: the safe stop comes after watchdog_missed_cycles periods of wall time
-    (100 ms here: tick 10 at 30 ms apart, watchdog.WALL_MIN_SHARE of the 100), not after
-    100 ticks (3 s). One long tick of the plant's own, answered at once, trips nothing."""
+    last command: the safe stop comes after watchdog.WALL_FACTOR times watchdog_missed_cycles
+    periods of wall time (200 ms here; at tick 10, 30 ms apart: watchdog.WALL_MIN_SHARE of
+    the 100), not after 100 ticks (3 s). One long tick of the plant's own, answered at once, trips nothing."""
     import cr_sim.plant_node as plant_node
 
     clock = _Clock()
@@ -229,8 +229,10 @@ def test_a_realtime_plant_loads_its_kernels_before_its_first_tick(ros_env, robot
 
 def test_the_watchdog_counts_ticks_and_wall_time_and_says_so_once():
     """cr_sim.watchdog without a node: unarmed until the first command; 100 quick ticks
-    trip it once; 10 ticks 30 ms apart trip it (the wall-time rule); 9 do not; a command
-    and a disarm start over."""
+    trip it once; 10 ticks 30 ms apart trip it (the wall-time rule: 300 >= 200 ms); 9 do
+    not; 99 ticks 2 ms apart (198 ms) do not, the 100th does (the tick count first: a
+    plant losing some ticks brakes after the ticks the parameter states); a command and a
+    disarm start over."""
     from cr_sim.watchdog import Watchdog
 
     dog = Watchdog(100, 1e-3)
@@ -242,5 +244,8 @@ def test_the_watchdog_counts_ticks_and_wall_time_and_says_so_once():
     dog.tick(2.0, True)
     assert [dog.tick(2.0 + 0.03 * k, False) for k in range(1, 10)] == [None] * 9
     assert "10 consecutive cycles in 300 ms" in dog.tick(2.3, False)
+    dog.tick(3.0, True)
+    assert [dog.tick(3.0 + 0.002 * k, False) for k in range(1, 100)] == [None] * 99
+    assert "100 consecutive cycles in 200 ms" in dog.tick(3.2, False)
     dog.disarm()
     assert dog.run == 0 and dog.tick(9.0, False) is None                   # until a command
