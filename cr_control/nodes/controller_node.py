@@ -312,17 +312,19 @@ class ControllerNode(LifecycleNode):
         self._interface = "refused"     # from now on no state is answered
         self._plant_interface = interface
         self._refused_at = time.monotonic()
-        if self._plant_parameters.service_is_ready():
-            self._scenario_future = self._plant_parameters.call_async(
-                GetParameters.Request(names=["scenario"]))
         self._refusal_timer.reset()
+        self._refuse_when_ready()
 
     def _refuse_when_ready(self) -> None:
         """Log the refusal (with the plant's scenario once known, or after SCENARIO_WAIT_S)
-        and complete ``refused``: main() then exits with code 1."""
-        future = self._scenario_future
+        and complete ``refused``: main() then exits with code 1. The plant's parameter
+        service is asked as soon as it is discovered (it may come after its interface)."""
         waited = time.monotonic() - self._refused_at
-        if future is not None and not future.done() and waited < SCENARIO_WAIT_S:
+        if self._scenario_future is None and self._plant_parameters.service_is_ready():
+            self._scenario_future = self._plant_parameters.call_async(
+                GetParameters.Request(names=["scenario"]))
+        future = self._scenario_future
+        if (future is None or not future.done()) and waited < SCENARIO_WAIT_S:
             return
         self._refusal_timer.cancel()
         scenario = ""
