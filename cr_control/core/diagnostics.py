@@ -148,6 +148,8 @@ class ControllerWindow:
     sensor_faults: int
     states_seen: bool               #: any state answered since the start
     active: bool = True             #: lifecycle state active (an inactive node answers none)
+    #: publishers on /joint_states that the state reader did not match (not followed)
+    unfollowed_publishers: int = 0
 
 
 def nearest_rank(values: Sequence[float], *ps: float) -> list[float]:
@@ -186,6 +188,8 @@ class ControllerRules:
             warnings.append("no state in the last window")
         if foreign:
             warnings.append(f"{foreign:.0f} states from a foreign publisher")
+        if w.unfollowed_publishers:
+            warnings.append(f"{w.unfollowed_publishers} other state publisher(s), not followed")
         if oversized:
             warnings.append(f"{oversized:.0f} oversized inputs dropped")
         if faults:
@@ -197,7 +201,9 @@ class ControllerRules:
             "held_cycles": _text(w.held_cycles), "restored_cycles": _text(w.restored_cycles),
             "commanding": _text(w.commanding), "command_stops": _text(w.stops),
             "states_foreign": _text(w.states_foreign), "inputs_oversized": _text(w.inputs_oversized),
-            "sensor_faults": _text(w.sensor_faults), "lifecycle": "active" if w.active else "inactive",
+            "sensor_faults": _text(w.sensor_faults),
+            "unfollowed_publishers": _text(w.unfollowed_publishers),
+            "lifecycle": "active" if w.active else "inactive",
         }
         return _judge(Status(self.name, self.hardware_id, values=values), errors, warnings,
                       "inactive (lifecycle): no command" if not w.active else

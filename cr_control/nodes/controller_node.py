@@ -33,7 +33,11 @@ nothing (another robot, a test probe) is driven as before.
 
 Guards (issue 25; counted in the status, :data:`cr_control.core.topics.NODE_STATUS_FIELDS`):
 
-- One source of states: /joint_states is taken with each message's publisher GID
+- One source of states: the nodes' Fast DDS profile lets the state reader match one
+  writer only, so a second publisher's states never reach this process (a 10 MB one costs
+  the loop nothing); :mod:`cr_control.nodes.state_source` reports the publishers not
+  followed and subscribes again once the followed one has left. Behind that, and alone
+  where the profile is not in force, /joint_states is taken with each message's publisher GID
   (:mod:`cr_control.nodes.sender_aware`; rclpy 7.1.6 gives Python none). The node follows
   the first publisher whose state it answers; states of any other are ignored unread
   (``states_foreign``, one warning) until the followed one has been silent for
@@ -97,6 +101,7 @@ from cr_control.nodes.raw_messages import (
 )
 from cr_control.nodes.ros_parameters import ParameterError, declare, police_changes
 from cr_control.nodes.spin import RCLError, quiet_on_shutdown, spin_nodes, start_nodes
+from cr_control.nodes.state_source import StateSourceWatch
 from cr_control.schemes.registry import SCHEMES, controller_class
 
 
@@ -232,6 +237,9 @@ class ControllerNode(LifecycleNode):
             self.create_subscription(Float64MultiArray, topics.PLANT_SENSORS,
                                      self._on_plant_sensors, CONTROL_QOS, raw=True)
         self._subscribe_states()
+        self.source_watch = StateSourceWatch(   # one writer matched (module docstring)
+            self, lambda: self._state_sub, quiet_on_shutdown(self, self._resubscribe_states),
+            lambda: self._source_seen, SOURCE_SILENCE_S)
         if hasattr(self.controller, "set_target_pose"):    # task-space schemes: live targets
             self._base_link = self.controller.values["base_link"]
             self.create_subscription(PoseStamped, f"~/{topics.TARGET_POSE_SUFFIX}",
@@ -515,6 +523,14 @@ class ControllerNode(LifecycleNode):
                                                    CONTROL_QOS, raw=True)
         self.get_logger().warn(f"rcl's take is out of reach here: states of every publisher on "
                                f"{topics.JOINT_STATES} are answered (they cannot be told apart)")
+
+    def _resubscribe_states(self) -> None:
+        """Make the state subscription again (its writer left: :mod:`state_source`)."""
+        if isinstance(self._state_sub, sender_aware.SenderAwareSubscription):
+            self._state_sub.destroy()
+        else:
+            self.destroy_subscription(self._state_sub)
+        self._subscribe_states()
 
     def _state_refused(self, data: bytes | None, length: int | None) -> bool:
         """True (counted, logged) for a state dropped unread for its size (module docstring):

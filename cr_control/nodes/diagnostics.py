@@ -107,4 +107,5 @@ class ControllerDiagnostics(_Publisher):
             restored_cycles=c.restored_cycles, commanding=c.commanding, stops=c.stops,
             states_foreign=node.states_foreign, inputs_oversized=node.inputs_oversized,
             sensor_faults=node.sensor_faults, states_seen=self._seen,
-            active=getattr(node, "active", True))))
+            active=getattr(node, "active", True),
+            unfollowed_publishers=getattr(getattr(node, "source_watch", None), "unfollowed", 0))))

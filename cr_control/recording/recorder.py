@@ -92,6 +92,7 @@ from rclpy.task import Future
 from std_msgs.msg import Bool
 
 from cr_control.core import topics
+from cr_control.core.ros_env import drop_node_dds_profile
 from cr_control.nodes.qos import READY_QOS
 from cr_control.nodes.ros_parameters import refuse_undeclared
 from cr_control.nodes.spin import refuse_empty_params_files
@@ -402,6 +403,7 @@ def main(args: Iterable[str] | None = None) -> int:
     argv = list(args) if args is not None else sys.argv
     if refuse_empty_params_files("recorder", argv):
         return 1
+    drop_node_dds_profile()     # it records every writer; Fast DDS's defaults (ros_env)
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = _StopRequest()
     signal.signal(signal.SIGINT, stop)

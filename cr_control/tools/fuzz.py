@@ -335,6 +335,8 @@ def judge(recording: Path | None, case: str, alive: bool, note: str,
         for name in names if name in values and np.nanmax(values[name]) > 0]
     held = int(np.sum(session.status.get("held", np.zeros(0)) > 0))
     counted += [f"held cycles {held}"] if held else []
+    sources = int(np.nanmax(timing.get("state_publishers", np.zeros(1))))
+    counted += [f"state_publishers {sources}"] if sources > 1 else []   # the rest unfollowed
     return Row(case, alive, finite, speed, safe_stop, resumed, float(np.nanmax(miss)), note,
                seen=", ".join(counted), fresh_median=median)
 
