@@ -16,17 +16,35 @@ What :func:`reserve` does (glibc only; elsewhere a no-op that says why):
 - ``mallopt(M_MMAP_MAX, 0)``: every allocation, however large, comes from the heap;
 - ``mallopt(M_TRIM_THRESHOLD, 1 GiB)``: freed heap memory stays with the process;
 - malloc the reserve, touch every page, free it: later allocations of the main
-  arena (the loop's thread, Python's objects) reuse those pages.
+  arena reuse those pages.
 
-Opt-in: ``CR_CONTROL_MEMORY_RESERVE_MB=64`` (64 MiB: two copies of the fuzz's 18 MB
-JointState, or the three buffers of an 8 MB parameter request, with room; 0 or unset:
-none, glibc's defaults). Off by
-default because the Panda row of ``cr_benchmark`` ran worse with it on a loaded day
-(2026-11-25, two single pairs each: -46.7 and -64.3 pp fresh commands against the echo
-pair with 64 MiB, -39.7 and -33.5 pp without, -26.7 to -43.8 pp before today's changes;
-the spread between pairs is as large as the differences, so the cause is not settled).
-Messages larger than the reserve still fault their excess pages in. The cost: the
-reserve's resident memory per loop process, touched once at start.
+And one malloc arena (``MALLOC_ARENA_MAX=1``, which :func:`loop_env` puts in the
+environment of the processes ``cr_session`` starts; glibc reads it at process start, and
+``mallopt(M_ARENA_MAX, 1)`` called later did not do it: a new thread's 16 MiB still
+faulted 520 pages in), so every thread allocates from the main arena, the reserve's.
+Without it glibc gives other threads arenas of their own, which
+the reserve does not cover: the parameter gate's thread took an 8 MB request into fresh
+pages (9-16 ms of page faults), and while it did the controller's *process* received the
+plant's states 4-8 ms late (rmw's reception timestamps), whether or not they had a
+receive thread of their own.
+
+On by default for the processes of the real-time loop (64 MiB; ``CR_CONTROL_MEMORY_RESERVE_MB``
+sets another size, 0 turns both off; lockstep processes take no reserve). A node started
+by hand takes the reserve; export ``MALLOC_ARENA_MAX=1`` for the single arena too. Measured on this
+project's 2-core VM (``cr_fuzz --cases Q_c_1e6_values``, the 8 MB request to the
+controller, 2026-11-26): missed 5-8 ms in 8 sessions with neither (baselines 3-5), 7, 4
+and 8 with the reserve alone, 9, 8 and 7 with one arena alone, and **3, 2, 3, 3, 4, 3**
+with both set for every process (baselines 2-3: at most 1 ms over); as shipped (the
+session sets the arena for its processes), 8 of 10 sessions within the fuzz's rule
+(baseline + 2 ms; 8 and 6 ms against 3 and 2 in the other two), and ``make fuzz``
+survived 14 of 14 for the first time. The reserve was opt-in before, because the
+Panda row of ``cr_benchmark`` ran worse with it on a loaded day (2026-11-25, two single
+pairs each: -46.7 and -64.3 pp fresh commands against the echo pair with 64 MiB, -39.7
+and -33.5 pp without; the spread between pairs was as large as the differences); the row
+measured again with both on, against both off, the same hour: -0.31 against -0.51 pp,
+994.5 against 993.7 Hz, p99 1.08x against 1.12x the echo pair's: no difference beyond
+the spread (docs/any_robot.md). The cost: 64 MiB
+resident per loop process, touched once at start (~50 ms).
 """
 
 from __future__ import annotations
@@ -35,21 +53,41 @@ import ctypes
 import ctypes.util
 import os
 
-#: Environment variable: the reserve in MiB (0: none).
+#: Environment variable: the reserve in MiB (0: none, and no single arena either).
 RESERVE_VARIABLE = "CR_CONTROL_MEMORY_RESERVE_MB"
+#: The reserve of a real-time loop process when the variable is unset (MiB).
+DEFAULT_RESERVE_MB = 64
 #: glibc's mallopt parameters (malloc.h).
 M_TRIM_THRESHOLD = -1
 M_MMAP_MAX = -4
+#: glibc's environment variable for the number of malloc arenas, read at process start.
+ARENA_VARIABLE = "MALLOC_ARENA_MAX"
 _PAGE = 4096
 
 
-def reserve_bytes() -> int:
-    """The reserve asked for: RESERVE_VARIABLE in MiB (0 if unset or not a number)."""
-    text = os.environ.get(RESERVE_VARIABLE, "").strip()
+def reserve_bytes(env: dict[str, str] | None = None) -> int:
+    """The reserve asked for: RESERVE_VARIABLE of ``env`` (default: os.environ) in MiB
+    (DEFAULT_RESERVE_MB if unset, 0 if not a number)."""
+    text = (os.environ if env is None else env).get(RESERVE_VARIABLE, "").strip()
     try:
-        return max(0, min(4096, int(text))) << 20 if text else 0
+        return max(0, min(4096, int(text))) << 20 if text else DEFAULT_RESERVE_MB << 20
     except ValueError:
         return 0
+
+
+def _libc():
+    """glibc through ctypes, with mallopt's signature (OSError/AttributeError if none)."""
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    libc.mallopt.argtypes, libc.mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return libc
+
+
+def loop_env(env: dict[str, str]) -> dict[str, str]:
+    """``env`` with ARENA_VARIABLE=1 (one malloc arena: module docstring) unless it sets
+    that variable already or asks for no reserve; for the processes a session starts."""
+    if ARENA_VARIABLE not in env and reserve_bytes(env) > 0:
+        env[ARENA_VARIABLE] = "1"
+    return env
 
 
 def reserve(size: int | None = None) -> str | None:
@@ -59,13 +97,11 @@ def reserve(size: int | None = None) -> str | None:
     size = reserve_bytes() if size is None else size
     if size <= 0:
         return None
-    name = ctypes.util.find_library("c")
     try:
-        libc = ctypes.CDLL(name or "libc.so.6")
-        mallopt = libc.mallopt
+        libc = _libc()
     except (OSError, AttributeError) as exc:                    # not glibc
         return f"no glibc mallopt ({exc})"
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    mallopt = libc.mallopt
     libc.malloc.argtypes, libc.malloc.restype = [ctypes.c_size_t], ctypes.c_void_p
     libc.free.argtypes, libc.free.restype = [ctypes.c_void_p], None
     if mallopt(M_MMAP_MAX, 0) != 1 or mallopt(M_TRIM_THRESHOLD, 1 << 30) != 1:
@@ -78,4 +114,5 @@ def reserve(size: int | None = None) -> str | None:
     return None
 
 
-__all__ = ["RESERVE_VARIABLE", "reserve", "reserve_bytes"]
+__all__ = ["ARENA_VARIABLE", "DEFAULT_RESERVE_MB", "RESERVE_VARIABLE", "loop_env", "reserve",
+           "reserve_bytes"]

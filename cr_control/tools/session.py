@@ -40,6 +40,7 @@ from cr_control.core.ros_env import (
     domain_id_arg,
     isolated_env,
 )
+from cr_control.nodes import memory_reserve
 from cr_control.schemes.registry import (
     SCHEMES,
     controller_class,
@@ -418,6 +419,7 @@ class Session:
         self.requested_domain = self._requested_domain()
         self.env = isolated_env(self.requested_domain)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
+        memory_reserve.loop_env(self.env)      # one malloc arena: the reserve serves every thread
         self.domain: DomainLock | None = None
         self.group = ProcessGroup(self.logs, self.env, progress)
 
