@@ -108,4 +108,4 @@ class ControllerDiagnostics(_Publisher):
             states_foreign=node.states_foreign, inputs_oversized=node.inputs_oversized,
             sensor_faults=node.sensor_faults, states_seen=self._seen,
             active=getattr(node, "active", True),
-            unfollowed_publishers=getattr(getattr(node, "source_watch", None), "unfollowed", 0))))
+            unfollowed_publishers=node.source_watch.unfollowed)))

@@ -75,13 +75,6 @@ def reserve_bytes(env: dict[str, str] | None = None) -> int:
         return 0
 
 
-def _libc():
-    """glibc through ctypes, with mallopt's signature (OSError/AttributeError if none)."""
-    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-    libc.mallopt.argtypes, libc.mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    return libc
-
-
 def loop_env(env: dict[str, str]) -> dict[str, str]:
     """``env`` with ARENA_VARIABLE=1 (one malloc arena: module docstring) unless it sets
     that variable already or asks for no reserve; for the processes a session starts."""
@@ -97,11 +90,13 @@ def reserve(size: int | None = None) -> str | None:
     size = reserve_bytes() if size is None else size
     if size <= 0:
         return None
+    name = ctypes.util.find_library("c")
     try:
-        libc = _libc()
+        libc = ctypes.CDLL(name or "libc.so.6")
+        mallopt = libc.mallopt
     except (OSError, AttributeError) as exc:                    # not glibc
         return f"no glibc mallopt ({exc})"
-    mallopt = libc.mallopt
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     libc.malloc.argtypes, libc.malloc.restype = [ctypes.c_size_t], ctypes.c_void_p
     libc.free.argtypes, libc.free.restype = [ctypes.c_void_p], None
     if mallopt(M_MMAP_MAX, 0) != 1 or mallopt(M_TRIM_THRESHOLD, 1 << 30) != 1:
