@@ -52,7 +52,7 @@ benchmark: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/cr_benchmark --json $(BENCH_JSON) $(BENCH_ARGS)
 
 ## Hostile and careless input (issue 25) against recorded real-time sessions, one row per
-## case (alive, finite, max |q'|, safe stop, resumed, verdict), ~4 min; FUZZ_ARGS e.g.
+## case (alive, finite, max |q'|, safe stop, resumed, verdict), ~5 min; FUZZ_ARGS e.g.
 ## "--cases huge_joint_state,second_commander".
 FUZZ_ARGS ?=
 fuzz: $(STAMP)

@@ -468,10 +468,14 @@ class PlantNode(Node):
         self._recorder_ready = self._recorder_ready or msg.data
 
     def _try_start(self) -> None:
-        """Start once a controller listens and answers (and the recorder is ready)."""
+        """Start once a controller listens and answers (and the recorder is ready): a node
+        that publishes commands and subscribes to the states (a real-time controller
+        subscribes only once discovery has settled: cr_control.nodes.discovery_settle)."""
         if self._started or not self._recorder_ready:
             return
         if self.state_pub.get_subscription_count() < 1 or self.command_sub.get_publisher_count() < 1:
+            return
+        if not self._commander_listens():
             return
         self._started = True
         self._start_timer.cancel()
@@ -482,6 +486,13 @@ class PlantNode(Node):
         self.get_logger().info("controller connected: starting")
         if self.lockstep:
             self._publish_state(*divmod(int(round(self.plant.time * 1e9)), 1_000_000_000))
+
+    def _commander_listens(self) -> bool:
+        """Some node that publishes on the command topic subscribes to the state topic."""
+        def nodes(infos) -> set[tuple[str, str]]:
+            return {(info.node_namespace, info.node_name) for info in infos}
+        commanders = nodes(self.get_publishers_info_by_topic(self.command_sub.topic_name))
+        return bool(commanders & nodes(self.get_subscriptions_info_by_topic(self.state_pub.topic_name)))
 
     def _finish(self) -> None:
         if self.finished.done():

@@ -11,12 +11,17 @@ from plant_harness import make_node  # noqa: F401 - a fixture for every test mod
 from ros_probe import domains_taken, next_domain, release_domains
 
 from cr_control.core.ros_env import isolated_env, use_node_dds_profile
+from cr_control.nodes.discovery_settle import SETTLE_VARIABLE
 
 # Tests that call rclpy.init in this process inherit these; the id is held for the run.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ["ROS_DOMAIN_ID"] = str(next_domain())
 os.environ.setdefault("MPLBACKEND", "Agg")
 use_node_dds_profile()   # nodes made in this process run as they do in their executables
+# Real-time controllers of the suite subscribe to the states at once: the wait of
+# cr_control/nodes/discovery_settle.py (4 s a start, minutes over the suite) is tested in
+# test_discovery_settle.py.
+os.environ.setdefault(SETTLE_VARIABLE, "0")
 
 
 @pytest.fixture(autouse=True, scope="module")

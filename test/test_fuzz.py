@@ -59,8 +59,8 @@ def test_every_row_of_the_issue_is_a_case():
     names = set(fuzz.CASE_NAMES)
     assert {"Q_c_1e308", "reference_frequency_1e308", "reference_amplitude_1000", "Q_c_1e6_values",
             "second_commander", "second_commander_1e308", "second_state_source",
-            "huge_joint_state", "wrench_1e12", "joining_nodes", "refused_flood",
-            "unknown_parameter"} <= names
+            "huge_joint_state", "wrench_1e12", "joining_nodes", "staying_node",
+            "refused_flood", "unknown_parameter"} <= names
     assert fuzz.CASE_NAMES[0] == "baseline"
 
 

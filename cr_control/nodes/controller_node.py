@@ -83,7 +83,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from cr_control.core import cdr, topics
-from cr_control.nodes import sender_aware
+from cr_control.nodes import discovery_settle, sender_aware
 from cr_control.nodes.diagnostics import ControllerDiagnostics
 from cr_control.nodes.lockstep import ReaderPacer
 from cr_control.nodes.markers import ControllerMarkers
@@ -236,7 +236,15 @@ class ControllerNode(LifecycleNode):
         if self._sensor_fields:
             self.create_subscription(Float64MultiArray, topics.PLANT_SENSORS,
                                      self._on_plant_sensors, CONTROL_QOS, raw=True)
-        self._subscribe_states()
+        self._state_sub = None
+        settle = 0.0 if values["lockstep"] else discovery_settle.settle_s()
+        if settle > 0:      # module docstring of discovery_settle; a timer made up front
+            self._settle_timer = self.create_timer(settle, self._subscribe_once_settled)
+            self.get_logger().info(
+                f"subscribing to {topics.JOINT_STATES} in {settle:g} s, once every participant "
+                f"already on the domain is discovered ({discovery_settle.SETTLE_VARIABLE})")
+        else:
+            self._subscribe_states()
         self.source_watch = StateSourceWatch(   # one writer matched (module docstring)
             self, lambda: self._state_sub, quiet_on_shutdown(self, self._resubscribe_states),
             lambda: self._source_seen, SOURCE_SILENCE_S)
@@ -523,6 +531,10 @@ class ControllerNode(LifecycleNode):
                                                    CONTROL_QOS, raw=True)
         self.get_logger().warn(f"rcl's take is out of reach here: states of every publisher on "
                                f"{topics.JOINT_STATES} are answered (they cannot be told apart)")
+
+    def _subscribe_once_settled(self) -> None:
+        self._settle_timer.cancel()
+        self._subscribe_states()
 
     def _resubscribe_states(self) -> None:
         """Make the state subscription again (its writer left: :mod:`state_source`)."""

@@ -63,6 +63,8 @@ class StateSourceWatch:
     def tick(self) -> None:
         """One check (see the module docstring)."""
         sub = self.subscription()
+        if sub is None:                       # not subscribed yet (discovery_settle)
+            return
         matched = sub.get_publisher_count()
         present = self.node.count_publishers(sub.topic_name)
         self.unfollowed = max(0, present - matched)
