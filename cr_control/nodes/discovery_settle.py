@@ -17,12 +17,11 @@ Opens come late because a participant already on the domain is discovered only a
 next periodic announcement (every 3 s by default), not when the newcomer announces itself:
 the plant and the controller opened the ports of a process started ~1 s before them (the
 fuzz's node; likewise rviz or a driver started earlier) a median 2.8 s (at most 3.7 s)
-after they were created,
-whether they ran at nice -10 or not, with or without this package's profile, and with an
-announcement period of their own of 0.25 s. The controller was then in the loop: 334-670 ms
-stalls and a safe stop in about 1 session in 30 (``cr_fuzz``, baseline sessions with
-nothing sent; traced on the controller's discovery thread, which slept 333 ms exactly when
-its commands stopped).
+after they were created, whether they ran at nice -10 or not, with or without this
+package's profile, and with an announcement period of their own of 0.25 s. The controller
+was then in the loop: 334-670 ms stalls, 3 safe stops in about 200 ``cr_fuzz`` sessions
+(one in a baseline with nothing sent; the controller's discovery thread was traced
+sleeping 333 ms exactly when its commands stopped).
 
 So a real-time controller subscribes to /joint_states only :func:`settle_s` after it was
 created: by then it has heard every participant that was on the domain before it, has
@@ -31,9 +30,10 @@ waits for that subscription before its loop starts (a robot's driver keeps to it
 command timeout meanwhile). Lockstep never waits: there a stall only slows the run.
 
 Participants that join later are the other half: our nodes announce themselves every
-0.25 s (their Fast DDS profile, fastdds_profile.xml) so they send to a newcomer within ~0.6 s of its
-start, while its ports are still fresh (with the default 3 s: 1.3-3.1 s after, in the loop;
-three plain nodes that joined and stayed gave a 632 ms stall in 1 of 3 sessions).
+0.25 s (their Fast DDS profile, fastdds_profile.xml), so they send to a newcomer within
+~0.6 s of its start, while its ports are still fresh (with the default 3 s: up to 3.1 s
+after, in the loop; three plain nodes that joined and stayed gave a 632 ms stall in 1 of 3
+sessions).
 """
 
 from __future__ import annotations
