@@ -6,12 +6,11 @@ from __future__ import annotations
 
 import math
 import re
-import subprocess
 import sys
 import time
 
 import pytest
-from ros_probe import RosProbe, next_domain, stop_node
+from ros_probe import RosProbe, next_domain, start_node, stop_node
 
 from cr_control.core import topics
 from cr_control.core.ros_env import NODE_DDS_PROFILE, isolated_env
@@ -36,24 +35,17 @@ def test_the_wait_is_read_from_the_environment(text, expected):
     assert math.isfinite(settle_s(env))
 
 
-def _controller(env: dict[str, str], *ros_args: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "cr_control.nodes.controller_node", NODE]
-    cmd += ["--ros-args", *ros_args] if ros_args else []
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-
-def _subscribed_after(env: dict[str, str], *ros_args: str) -> tuple[float, float]:
-    """(s from the controller's command publisher appearing to its state subscription, s
-    it took the command publisher to appear)."""
-    proc = _controller(env, *ros_args)
+def _subscribed_after(env: dict[str, str], *ros_args: str) -> float:
+    """Seconds from the controller's command publisher appearing to its state subscription."""
+    proc = start_node([sys.executable, "-m", "cr_control.nodes.controller_node", NODE], env,
+                      *ros_args)
     probe = RosProbe(int(env["ROS_DOMAIN_ID"]))
     try:
         node = probe.node
-        started = time.monotonic()
         assert probe.spin_until(lambda: node.count_publishers(topics.JOINT_COMMANDS) > 0, 60)
         commanding = time.monotonic()
         assert probe.spin_until(lambda: node.count_subscribers(topics.JOINT_STATES) > 0, 30)
-        return time.monotonic() - commanding, commanding - started
+        return time.monotonic() - commanding
     finally:
         probe.close()
         stop_node(proc)
@@ -62,7 +54,7 @@ def _subscribed_after(env: dict[str, str], *ros_args: str) -> tuple[float, float
 def test_a_realtime_controller_subscribes_to_the_states_only_after_the_wait():
     env = isolated_env(next_domain())
     env[SETTLE_VARIABLE] = str(SETTLE)
-    waited, _ = _subscribed_after(env)
+    waited = _subscribed_after(env)
     # Its publishers exist from its start; the subscription comes SETTLE s after the node
     # was made (the publisher's discovery takes part of that).
     assert SETTLE - 1.0 < waited < SETTLE + 5.0
@@ -71,7 +63,7 @@ def test_a_realtime_controller_subscribes_to_the_states_only_after_the_wait():
 def test_a_lockstep_controller_subscribes_at_once():
     env = isolated_env(next_domain())
     env[SETTLE_VARIABLE] = "30"
-    waited, _ = _subscribed_after(env, "-p", "lockstep:=true")
+    waited = _subscribed_after(env, "-p", "lockstep:=true")
     assert waited < 5.0          # not the 30 s asked for real time
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import fcntl
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -38,6 +39,24 @@ VISITOR_DDS_PROFILE = Path(__file__).with_name("fastdds_profile_visitor.xml")
 #: Where Fast DDS (2.x) looks for a profile: this variable, else this file in the cwd.
 DDS_PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
 DDS_PROFILE_IN_CWD = "DEFAULT_FASTRTPS_PROFILES.xml"
+
+
+def env_number(variable: str, default: float, low: float, high: float, *, parse=float,
+               invalid: float | None = None, env: dict[str, str] | None = None) -> int | float:
+    """The number in ``variable`` of ``env`` (default: os.environ), read by ``parse``
+    (``float`` or ``int``) and clamped to [low, high]: ``default`` if unset or blank,
+    ``invalid`` (default: ``default``) if it does not parse or is not finite. The loop's
+    settings by environment (nice, priority, heap reserve, discovery wait) read this way."""
+    text = (os.environ if env is None else env).get(variable, "").strip()
+    if not text:
+        return default
+    try:
+        value = parse(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        return default if invalid is None else invalid
+    return max(low, min(high, value))
 
 
 def check_domain_id(value: int | str) -> int:

@@ -38,8 +38,7 @@ sessions).
 
 from __future__ import annotations
 
-import math
-import os
+from cr_control.core.ros_env import env_number
 
 #: Environment variable: the wait in seconds (0: none).
 SETTLE_VARIABLE = "CR_CONTROL_DISCOVERY_SETTLE_S"
@@ -53,12 +52,7 @@ MAX_SETTLE_S = 60.0
 def settle_s(env: dict[str, str] | None = None) -> float:
     """The wait asked for by SETTLE_VARIABLE of ``env`` (default: os.environ), in s:
     DEFAULT_SETTLE_S when unset or unreadable, else clipped to [0, MAX_SETTLE_S]."""
-    text = (os.environ if env is None else env).get(SETTLE_VARIABLE, "").strip()
-    try:
-        value = float(text) if text else DEFAULT_SETTLE_S
-    except ValueError:
-        return DEFAULT_SETTLE_S
-    return DEFAULT_SETTLE_S if not math.isfinite(value) else min(max(value, 0.0), MAX_SETTLE_S)
+    return env_number(SETTLE_VARIABLE, DEFAULT_SETTLE_S, 0.0, MAX_SETTLE_S, env=env)
 
 
 __all__ = ["DEFAULT_SETTLE_S", "MAX_SETTLE_S", "SETTLE_VARIABLE", "settle_s"]

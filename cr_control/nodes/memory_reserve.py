@@ -51,7 +51,8 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import os
+
+from cr_control.core.ros_env import env_number
 
 #: Environment variable: the reserve in MiB (0: none, and no single arena either).
 RESERVE_VARIABLE = "CR_CONTROL_MEMORY_RESERVE_MB"
@@ -68,11 +69,8 @@ _PAGE = 4096
 def reserve_bytes(env: dict[str, str] | None = None) -> int:
     """The reserve asked for: RESERVE_VARIABLE of ``env`` (default: os.environ) in MiB
     (DEFAULT_RESERVE_MB if unset, 0 if not a number)."""
-    text = (os.environ if env is None else env).get(RESERVE_VARIABLE, "").strip()
-    try:
-        return max(0, min(4096, int(text))) << 20 if text else DEFAULT_RESERVE_MB << 20
-    except ValueError:
-        return 0
+    return env_number(RESERVE_VARIABLE, DEFAULT_RESERVE_MB, 0, 4096, parse=int, invalid=0,
+                      env=env) << 20
 
 
 def loop_env(env: dict[str, str]) -> dict[str, str]:

@@ -45,6 +45,8 @@ from collections.abc import Callable, Sequence
 
 from rclpy.node import Node
 
+from cr_control.core.ros_env import env_number
+
 #: SCHED_FIFO priority of the real-time loop's threads by default: 0, ordinary scheduling.
 LOOP_PRIORITY = 0
 #: Set CR_CONTROL_REALTIME_PRIORITY=50 for SCHED_FIFO at 50 (0 or unset: ordinary scheduling).
@@ -66,16 +68,6 @@ def runs_realtime_loop(node: Node) -> bool:
         return node.has_parameter("lockstep") and node.get_parameter("lockstep").value is False
     except Exception:  # noqa: BLE001 - a node that cannot tell is not on the loop
         return False
-
-
-def _setting(variable: str, default: int, low: int, high: int) -> int:
-    """The integer in the environment ``variable`` clamped to [low, high]; ``default`` if
-    it is unset or not an integer."""
-    text = os.environ.get(variable, "")
-    try:
-        return max(low, min(high, int(text))) if text else default
-    except ValueError:
-        return default
 
 
 def _every_thread(set_one: Callable[[int], None]) -> None:
@@ -127,8 +119,8 @@ def apply(nodes: Sequence[Node]) -> None:
     if not loop or any(getattr(n, "realtime_loop", None) is False for n in nodes):
         return          # a lockstep plant in the process (composed): it runs flat out
     logger = loop[0].get_logger()
-    priority = _setting(PRIORITY_VARIABLE, LOOP_PRIORITY, 0, 99)
-    nice = _setting(NICE_VARIABLE, LOOP_NICE, -20, 0)
+    priority = env_number(PRIORITY_VARIABLE, LOOP_PRIORITY, 0, 99, parse=int)
+    nice = env_number(NICE_VARIABLE, LOOP_NICE, -20, 0, parse=int)
     if priority == 0:
         if nice:
             why = use_loop_nice(nice)
