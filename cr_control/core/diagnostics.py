@@ -178,7 +178,7 @@ class ControllerRules:
         if restored:
             errors.append(f"{restored:.0f} cycles restored a non-finite internal state")
         if not w.commanding:
-            errors.append("stopped commanding (max_bad_cycles): the plant's watchdog brakes")
+            errors.append("stopped commanding (max_bad_cycles or the start check): braking")
         if held:
             warnings.append(f"{held:.0f} cycles held")
         if p99 > COMPUTE_WARN_FRACTION * w.period_s:

@@ -53,6 +53,9 @@ import pinocchio as pin
 
 from cr_control.core.paths import config_dir
 
+#: eps_q (rad/s, m/s): URDF joint Coulomb friction is modelled as F tanh(q'/eps_q), 76 % of F at
+#: q' = eps_q (the plants simulate it, a controller compensates it).
+JOINT_FRICTION_EPSILON = 0.01
 #: Pinocchio joint models a serial chain controller drives: kind per short name.
 REVOLUTE, CONTINUOUS, PRISMATIC = "revolute", "continuous", "prismatic"
 JOINT_KINDS = {

@@ -60,8 +60,10 @@ go to the law, which compensates them (:mod:`cr_control.schemes.blocks.wrist_sen
 ``~/zero_ft`` (std_srvs/Trigger) starts zeroing the sensor's bias, or refuses with the
 reason (no wrench yet, moving, in contact, a zeroing under way).
 - A failing law: while :attr:`Controller.commanding` is False (its output failed for more
-  than ``max_bad_cycles`` cycles in a row) no command is published, so the plant's
-  watchdog brakes; ``commands_stopped`` is 1.
+  than ``max_bad_cycles`` cycles in a row, or a failed start check) a scheme with a braking
+  command publishes that every cycle (a real robot holds the last command forever); a
+  scheme without one publishes nothing, so the plant's watchdog brakes;
+  ``commands_stopped`` is 1.
 """
 
 from __future__ import annotations
@@ -619,7 +621,7 @@ class ControllerNode(LifecycleNode):
             self._held_state = (data, sender)
             return
         if stamp == self._last_stamp and self._answered:
-            if self.controller.commanding:
+            if self._publishes:
                 self.command_pub.publish(self._command_bytes)  # a repeated state: same answer
             return
         if self._pacer is None and getattr(self._state_sub, "newer_queued", False):
@@ -649,7 +651,7 @@ class ControllerNode(LifecycleNode):
         self._command.set_stamp(*stamp)
         self._command_out[:] = out.command
         self._command_bytes = self._command.message()
-        if self.controller.commanding:      # else the plant's watchdog brakes (module docstring)
+        if self._publishes:     # else the plant's watchdog brakes (module docstring)
             self.command_pub.publish(self._command_bytes)
             if self.forward_pub is not None:
                 self._forward_out[:] = out.command
@@ -674,6 +676,13 @@ class ControllerNode(LifecycleNode):
         self._out_time_us = (time.perf_counter() - out_start) * 1e6
         if self._pacer is not None:
             self._pacer.published()
+
+
+    @property
+    def _publishes(self) -> bool:
+        """Whether this cycle's output is published: while the law commands, or while the
+        controller brakes through the command interface (it gave up and has a brake)."""
+        return self.controller.commanding or self.controller.brakes
 
 
 def main(scheme: str | None = None, args: list[str] | None = None) -> int:

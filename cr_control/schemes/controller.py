@@ -7,13 +7,18 @@ to ``max_dt`` and a gap in stamps restarts the stepping instead of being integra
 one step; a non-finite internal state is restored; the status reports the command
 actually sent.
 
-A law that fails for good does not keep a command in force (issue 25): after
+A law that fails for good does not keep a command in force: after
 ``max_bad_cycles`` cycles in a row whose output was held because of the law (a
 non-finite command or internal state) or had a command element at its limit on the same
 side (+-max_effort, or the URDF effort the task-space kernels clip to: ``command_limits``),
-:attr:`Controller.commanding` turns False and the node publishes no command, so the
-plant's watchdog brakes; it turns True again with the first output that is finite and
-inside its limits. Commands alternating between the two limits (the chatter of
+:attr:`Controller.commanding` turns False. A scheme with a braking command
+(:meth:`Controller.brake_command`: the task-space schemes) then outputs it every cycle and
+the node keeps publishing it, because a real robot's forward_command_controller applies
+the last command forever (ros2_controllers #95); a scheme without one stops publishing and
+the plant's watchdog brakes. Commanding turns True again with the first output that is
+finite and inside its limits, unless the controller gave up for good
+(:meth:`Controller.give_up`: a failed start check), which only an activation undoes.
+Commands alternating between the two limits (the chatter of
 fjr_robust_adaptive's measured q_m'') restart the count; cycles held because of the
 input (a NaN state, a stamp gap) are not the law's doing and leave it alone. The count is
 kept by :func:`accept_cycle`, per command element.
@@ -293,6 +298,8 @@ class Controller(ABC):
         self.bad_run = 0
         #: How often commanding stopped.
         self.stops = 0
+        #: True after :meth:`give_up`: commanding stays off until :meth:`reset`.
+        self.gave_up = False
         self._guard = np.zeros(2 * self.n_joints)
         #: Where fault warnings go (the controller node routes them to its ROS logger), and
         #: the one-off lines of a stop (error) and of resuming (info).
@@ -390,9 +397,11 @@ class Controller(ABC):
         :attr:`commanding` turns False (one error line) once the law has failed for more
         than max_bad_cycles cycles in a row (held because of the law, or a command element
         at its limit on the same side: :func:`accept_cycle`), and True again (one info
-        line) with the first cycle whose output is finite and inside its limits. The
-        output is the same either way (the offline loop, which has no watchdog, applies
-        it); the node publishes no command while it is False.
+        line) with the first cycle whose output is finite and inside its limits (not after
+        :meth:`give_up`). While it is False a scheme with a braking command outputs that
+        (:meth:`brake_command`, clipped like a command) and the node publishes it; a scheme
+        without one outputs the law's command, which the offline loop (no watchdog) applies
+        and the node does not publish.
         """
         start = time.perf_counter()
         values = self.values
@@ -420,8 +429,42 @@ class Controller(ABC):
             out = self._held_output()
         else:
             self._last = out
+            if not self.commanding:
+                self._brake(out, q, v)
         out.status[self._i_compute] = (time.perf_counter() - start) * 1e6
         return out
+
+    def brake_command(self, q: np.ndarray, v: np.ndarray) -> np.ndarray | None:
+        """The command that brakes the robot at the measured state (q, q') while this
+        controller does not command (module docstring), in command order; None (the
+        default): the scheme has none, the node stops publishing and the plant's watchdog
+        brakes."""
+        return None
+
+    @property
+    def brakes(self) -> bool:
+        """True if the scheme outputs a braking command while it does not command."""
+        return False
+
+    def _brake(self, out: ControlOutput, q: np.ndarray, v: np.ndarray) -> None:
+        """Replace this cycle's command by the braking command (where the scheme has one)."""
+        brake = self.brake_command(q, v) if self.brakes else None
+        if brake is None or not np.all(np.isfinite(brake)):
+            return
+        limit = np.minimum(self.values["max_effort"], self.command_limits)
+        out.command[:] = np.clip(brake, -limit, limit)
+        if len(self._command_slots) == self.n_joints:
+            out.status[self._command_slots] = out.command
+
+    def give_up(self, reason: str) -> None:
+        """Stop commanding for good (one error line): the brake, where the scheme has one,
+        until :meth:`reset` (a lifecycle activation)."""
+        if self.gave_up:
+            return
+        self.gave_up = True
+        self.commanding = False
+        self.stops += 1
+        self.log_error(reason)
 
     def reset(self, keep_time: bool) -> None:
         """Start the law afresh from the next state, as a lifecycle activation does: the
@@ -440,6 +483,7 @@ class Controller(ABC):
         self._guard[:] = 0.0
         self.bad_run = 0
         self.commanding = True
+        self.gave_up = False
         self._last = None
 
     def observe(self, stamp: float) -> None:
@@ -486,7 +530,7 @@ class Controller(ABC):
         if run > values["max_bad_cycles"]:
             if self.commanding:
                 self._stop(reason or self._at_limit())
-        elif run == 0 and not self.commanding:
+        elif run == 0 and not self.commanding and not self.gave_up:
             self._resume()
         return (out, "") if verdict == ACCEPTED else (None, reason)
 
@@ -507,9 +551,10 @@ class Controller(ABC):
         self.stops += 1
         self.log_error(
             f"{self.scheme}: more than {self.values['max_bad_cycles']} cycles in a row "
-            f"(max_bad_cycles) with a non-finite or saturated output ({reason}): commands "
-            "stopped; the plant's watchdog will brake. Commanding resumes once the law's "
-            "output is finite and inside its limits")
+            f"(max_bad_cycles) with a non-finite or saturated output ({reason}): "
+            + ("braking (the braking command is published in its place)" if self.brakes
+               else "commands stopped; the plant's watchdog will brake")
+            + ". Commanding resumes once the law's output is finite and inside its limits")
 
     def _resume(self) -> None:
         self.commanding = True

@@ -88,9 +88,10 @@ def robot_files() -> dict[str, str]:
     """robots/<robot>/plant.yaml and robots/<robot>/<scheme>.yaml of every known robot."""
     files = {}
     for name in robots.ROBOTS:
-        plant = robots.plant_values(robots.robot(name))
+        r = robots.robot(name)
+        plant = {**robots.plant_values(r), "rate_hz": r.rate_hz}
         files[f"robots/{name}/plant.yaml"] = plant_yaml(
-            plant["scenario"], plant, f"plant: the {name} wiping a table")
+            plant["scenario"], plant, f"plant: the {name} wiping a table ({r.driver})")
         for scheme in robots.TASK_SPACE_SCHEMES:
             files[f"robots/{name}/{scheme}.yaml"] = params_yaml(scheme, name)
     return files

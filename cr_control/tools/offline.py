@@ -143,10 +143,17 @@ def build_scheme(scheme: str, controller_overrides: dict[str, Any] | None = None
 
 
 def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
-               plant_overrides: dict[str, Any] | None = None, period: float = 1e-3,
+               plant_overrides: dict[str, Any] | None = None, period: float | None = None,
                robot: str | None = None,
                hook: Callable[[int, float, Controller, Plant], None] | None = None) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
-    on ``robot``'s wiping task (see :func:`build_scheme`)."""
+    on ``robot``'s wiping task (see :func:`build_scheme`); ``period`` (s) defaults to 1 ms,
+    on a robot to its driver's rate (the plant's ``rate_hz``: 2 ms for a UR)."""
     controller, plant = build_scheme(scheme, controller_overrides, plant_overrides, robot)
-    return run(controller, plant, duration, period, hook)
+    return run(controller, plant, duration, robot_period(robot) if period is None else period,
+               hook)
+
+
+def robot_period(robot: str | None) -> float:
+    """The control period (s) of ``robot``'s profile, 1 ms on a thesis plant."""
+    return 1e-3 if robot is None else 1.0 / robots.robot(robot).rate_hz

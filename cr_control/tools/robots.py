@@ -1,21 +1,32 @@
 """The robots ``cr_session --robot NAME`` knows, and their default task: wiping a table.
 
-A robot is its URDF (from example-robot-data, which `make demo ROBOT=...` and `make test`
-install: real kinematics and inertias), the chain's two links and a home pose. The wiping
-task, the same for every robot and scheme: the table is a compliant plane touching the tool
-at the home pose (normal +z), and the tool keeps 10 N on it while tracking a circle of
-radius WIPE_RADIUS in it, starting where it stands. Its parameters are generated into
-``config/robots/<robot>/`` (``plant.yaml`` and one file per task-space scheme) by
-``python -m cr_control.tools.config_files --write config``; sessions and the offline loop read
-those files, so what a test runs is what a user runs.
+A robot profile is its URDF (from example-robot-data, which `make demo ROBOT=...` and
+`make test` install: real kinematics and inertias), the chain's two links, a home pose and
+what the real robot's ROS 2 driver does, which the plant imitates: who compensates gravity
+and joint friction, the control rate, and where the wrench comes from.
 
-The force sensor is a realistic wrist sensor (issue 24): at the flange (``sensor_frame``:
-``panda_link8``, ``tool0``), reading in its own frame, carrying a 0.7 kg tool whose centre of
-mass is 6 cm out along the flange axis, with a bias of a few newtons and 0.2 N of noise
-(:data:`SENSOR`). The controllers know the tool (``tool_mass``, ``tool_com``: what
-``cr_identify_tool`` estimates) and zero the bias on their first states
-(``zero_ft_at_start``: the task starts touching at zero force). The thesis scenarios keep
-their ideal sensor.
+========== ==================== ======= ======== ====== ====================================
+profile    driver               gravity friction rate   wrench
+========== ==================== ======= ======== ====== ====================================
+panda      franka_ros2          robot   --       1 kHz  estimate O_F_ext_hat_K: base, reaction
+panda_ft   franka_ros2 + F/T    robot   --       1 kHz  wrist sensor: flange, tool, bias
+ur5        ur_robot_driver      robot   robot    500 Hz TCP sensor: tool0, no payload, bias
+ur5_ft     ur_robot_driver + F/T robot  robot    500 Hz wrist sensor: flange, tool, bias
+========== ==================== ======= ======== ====== ====================================
+
+The wiping task, the same for every profile and scheme: the table is a compliant plane
+touching the tool at the home pose (normal +z), and the tool keeps 10 N on it while
+tracking a circle of radius WIPE_RADIUS in it, starting where it stands. Its parameters are
+generated into ``config/robots/<profile>/`` (``plant.yaml`` and one file per task-space
+scheme) by ``python -m cr_control.tools.config_files --write config``; sessions and the
+offline loop read those files, so what a test runs is what a user runs.
+
+The wrist sensor (``*_ft``) sits at the flange (``sensor_frame``: ``panda_link8``,
+``tool0``), reading in its own frame, carrying a 0.7 kg tool whose centre of mass is 6 cm
+out along the flange axis, with a bias of a few newtons and 0.2 N of noise (:data:`SENSOR`).
+The controllers know the tool (``tool_mass``, ``tool_com``: what ``cr_identify_tool``
+estimates) and zero the bias on their first states (``zero_ft_at_start``: the task starts
+touching at zero force). The thesis scenarios keep their ideal sensor.
 """
 
 from __future__ import annotations
@@ -31,8 +42,10 @@ from cr_control.models.urdf import load_chain
 
 @dataclass(frozen=True)
 class Robot:
-    """A robot from its URDF: the chain base_link -> tip_link, a home pose, its source and
-    the flange, where the wrist force/torque sensor sits."""
+    """A robot profile: the URDF chain base_link -> tip_link, a home pose, its source and the
+    flange, and what the real robot's ROS 2 driver does (``driver``): who compensates gravity
+    and joint friction, the control rate and where the wrench comes from (``wrench``: one of
+    :data:`WRENCH_SOURCES`)."""
 
     name: str
     urdf_file: str
@@ -41,21 +54,50 @@ class Robot:
     home: tuple[float, ...]
     source: str
     flange: str
+    driver: str = ""
+    rate_hz: float = 1000.0
+    robot_compensates_gravity: bool = False
+    robot_compensates_friction: bool = False
+    wrench: str = "wrist"
 
+
+#: Where a profile's wrench comes from:
+#: - ``wrist``: a 6-axis F/T sensor on the flange through force_torque_sensor_broadcaster (its
+#:   own frame, the tool's weight, a bias and noise: :data:`SENSOR`);
+#: - ``estimated``: Franka's external wrench estimated from the joint torques, O_F_ext_hat_K:
+#:   base frame, no tool weight (libfranka takes the configured load off), the sign of the
+#:   reaction (franka users report it so: libfranka #26, franka_ros #254), estimation noise
+#:   :data:`ESTIMATE_NOISE`;
+#: - ``tcp``: UR's built-in TCP force/torque sensor (``ft_data``, ``tool0_controller``, which
+#:   is tool0 here): the sensor's frame, the payload's weight removed by the robot, a bias
+#:   that ``zero_ftsensor`` takes off (zeroed at start), noise.
+WRENCH_SOURCES = ("wrist", "estimated", "tcp")
+
+_PANDA = dict(
+    urdf_file="package://example-robot-data/robots/panda_description/urdf/panda.urdf",
+    base_link="panda_link0", tip_link="panda_hand_tcp",
+    home=(0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4),
+    source="Franka Emika Panda, 7 joints (+ 2 finger joints, locked): example-robot-data 6.0.0, "
+           "from franka_ros's description with its identified inertias; home = franka_ros's "
+           "ready pose", flange="panda_link8",
+    driver="franka_ros2 (libfranka): effort interface, desired torques without gravity "
+           "(libfranka adds g(q), no friction compensation), 1 kHz",
+    rate_hz=1000.0, robot_compensates_gravity=True)
+_UR5 = dict(
+    urdf_file="package://example-robot-data/robots/ur_description/urdf/ur5_robot.urdf",
+    base_link="base_link", tip_link="tool0",
+    home=(0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0),
+    source="Universal Robots UR5, 6 joints: example-robot-data 6.0.0, from ur_description (UR's "
+           "published kinematics and link masses); home: tool pointing down", flange="tool0",
+    driver="ur_robot_driver >= 3.5.0 (PolyScope >= 5.23): effort interface, target torques "
+           "without gravity; the robot also compensates joint friction; 500 Hz",
+    rate_hz=500.0, robot_compensates_gravity=True, robot_compensates_friction=True)
 
 ROBOTS = {
-    "panda": Robot(
-        "panda", "package://example-robot-data/robots/panda_description/urdf/panda.urdf",
-        "panda_link0", "panda_hand_tcp", (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0,
-                                          math.pi / 2, math.pi / 4),
-        "Franka Emika Panda, 7 joints (+ 2 finger joints, locked): example-robot-data 6.0.0, "
-        "from franka_ros's description with its identified inertias; home = franka_ros's "
-        "ready pose", "panda_link8"),
-    "ur5": Robot(
-        "ur5", "package://example-robot-data/robots/ur_description/urdf/ur5_robot.urdf",
-        "base_link", "tool0", (0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0),
-        "Universal Robots UR5, 6 joints: example-robot-data 6.0.0, from ur_description (UR's "
-        "published kinematics and link masses); home: tool pointing down", "tool0"),
+    "panda": Robot("panda", **_PANDA, wrench="estimated"),
+    "panda_ft": Robot("panda_ft", **_PANDA, wrench="wrist"),
+    "ur5": Robot("ur5", **_UR5, wrench="tcp"),
+    "ur5_ft": Robot("ur5_ft", **_UR5, wrench="wrist"),
 }
 
 #: Wiping: circle radius (m), angular frequency (rad/s), contact force (N) and the table.
@@ -66,6 +108,9 @@ WIPE_FORCE = 10.0
 FORCE_RAMP_TIME = 1.0
 TABLE_STIFFNESS = 5000.0
 TABLE_DAMPING = 20.0
+#: Coulomb friction of the tool on the table: a real table is not frictionless (~0.3 for a
+#: tool on a table), and the path in the table's plane must be held against it.
+TABLE_FRICTION = 0.3
 GRAVITY = [0.0, 0.0, -9.81]
 #: The robust scheme's wrong model on a robot: 10 % light, and a bound on the gravity error
 #: it makes. Section 3.5.2's 50 % on the 0.2 kg thesis arm is a few newtons; on a 20 kg arm it
@@ -86,12 +131,25 @@ NN_GAINS = {"Gamma_M": 0.01, "Gamma_C": 0.01, "Gamma_G": 1.0}
 SENSOR = {"tool_mass": 0.7, "tool_com": [0.0, 0.0, 0.06],
           "tool_inertia": [1.0e-3, 0.0, 0.0, 1.0e-3, 0.0, 3.2e-4],
           "ft_bias": [2.0, -1.5, 3.0, 0.1, -0.05, 0.02], "ft_noise_std": [0.2, 0.01]}
+#: Franka's estimated external wrench: its noise (N, std per component). The estimate comes
+#: from the joint torque sensors through the model; ~0.3 N of scatter at rest.
+ESTIMATE_NOISE = 0.3
 #: The guarded approach on a robot (cr_control.schemes.blocks.contact_guard): down towards the
 #: table at 5 cm/s until 2 N, at most 10 cm. A tool touching the table at the start (the
 #: default wiping task) reaches 2 N within 0.1 s; started 5 cm above it (the plant's
 #: start_clearance) it touches after ~1.1 s with an impact peak below the 10 N target
 #: (test/test_contact_guard.py).
 APPROACH = {"approach_speed": 0.05, "contact_threshold": 2.0, "approach_distance": 0.1}
+#: The chapter 5 laws on a table: stiff in the table's plane, compliant along the force. Their
+#: impedance (5.6) has one k_m = 60 N/m on every axis, so the table's friction (mu f_n = 3 N at
+#: 10 N) holds the tool ~50 mm behind its path (measured on the Panda: the circle shrank to a
+#: 3.3 mm radius); k_t = 3000 N/m in the plane (1 mm per 3 N) with d_t = 120 N s/m (critical
+#: for m_m = 1.2 kg) tracks it to 0.05 mm, the normal impedance unchanged.
+TANGENTIAL = {"tangential_stiffness": 3000.0, "tangential_damping": 120.0}
+#: The chapter 3 laws' initial estimate c_hat(0) on a robot: zero. Section 3.5.1's c_hat(0) =
+#: [1, 1] is a task acceleration the law applies before it has adapted anything: on the Panda
+#: it pushed the tool 10-15 mm sideways while it settled, and the circle was anchored there.
+C_HAT_0 = 0.0
 #: The chapter 5 laws are impedances about the reference (k_m = 60 N/m): pressing 2 N needs
 #: the approach's reference 33 mm below the table; 0.5 N (8 mm) finds it within 0.2 s.
 APPROACH_CH5_THRESHOLD = 0.5
@@ -113,9 +171,10 @@ def robot(name: str) -> Robot:
 
 
 def robot_parameters(r: Robot) -> dict[str, Any]:
-    """The robot parameters every node on it takes."""
+    """The robot parameters every node on it takes: its chain, gravity and who compensates it."""
     return {"urdf_file": r.urdf_file, "base_link": r.base_link, "tip_link": r.tip_link,
-            "gravity": list(GRAVITY)}
+            "gravity": list(GRAVITY), "robot_compensates_gravity": r.robot_compensates_gravity,
+            "robot_compensates_friction": r.robot_compensates_friction}
 
 
 def home_tip(r: Robot) -> np.ndarray:
@@ -124,12 +183,34 @@ def home_tip(r: Robot) -> np.ndarray:
     return np.array(chain.tip_pose(np.array(r.home)).translation)
 
 
+def plant_wrench(r: Robot) -> dict[str, Any]:
+    """The plant's wrench parameters imitating the profile's wrench source."""
+    if r.wrench == "estimated":
+        return {"wrench_sign": -1, "force_noise_std": ESTIMATE_NOISE}
+    values = {"sensor_frame": r.flange, **SENSOR}
+    if r.wrench == "tcp":
+        values["sensor_removes_payload"] = True
+    return values
+
+
+def controller_wrench(r: Robot) -> dict[str, Any]:
+    """What a controller on the profile is told of its wrench: frame, sign, the tool whose
+    weight it must take off, whether it zeroes the sensor at start."""
+    if r.wrench == "estimated":
+        return {"sensor_frame": "", "wrench_sign": -1, "zero_ft_at_start": False}
+    mass = 0.0 if r.wrench == "tcp" else SENSOR["tool_mass"]    # the robot removes the payload
+    return {"sensor_frame": r.flange, "wrench_sign": 1, "tool_mass": mass,
+            "tool_com": SENSOR["tool_com"], "zero_ft_at_start": True}
+
+
 def plant_values(r: Robot) -> dict[str, Any]:
-    """The plant of the wiping task: the robot at home on a compliant table."""
+    """The plant scenario of the wiping task: the robot at home on a compliant table,
+    compensating what the real robot compensates, with its wrench source (the plant node's
+    ``rate_hz`` is the profile's ``rate_hz``)."""
     return {**robot_parameters(r), "scenario": "urdf_surface",
             "initial_joint_positions": list(r.home), "surface": "plane",
             "surface_normal": [0.0, 0.0, 1.0], "stiffness": TABLE_STIFFNESS,
-            "damping": TABLE_DAMPING, "sensor_frame": r.flange, **SENSOR}
+            "damping": TABLE_DAMPING, "friction_coulomb": TABLE_FRICTION, **plant_wrench(r)}
 
 
 def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
@@ -141,16 +222,16 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
               "reference_offset": [a, 0.0, 0.0], "reference_amplitude": [a, a, 0.0],
               "reference_phase": [0.0, -math.pi / 2, 0.0],
               "reference_frequency": WIPE_FREQUENCY, "posture": list(r.home),
-              "force_ramp_time": FORCE_RAMP_TIME, "sensor_frame": r.flange,
-              "tool_mass": SENSOR["tool_mass"], "tool_com": SENSOR["tool_com"],
-              "zero_ft_at_start": True, **APPROACH}
+              "force_ramp_time": FORCE_RAMP_TIME, **controller_wrench(r), **APPROACH}
     if scheme in ("impedance", "fuzzy_unidirectional"):
         values.update(f_dm=WIPE_FORCE, surface="plane", surface_normal=[0.0, 0.0, 1.0],
                       surface_centre=[float(x) for x in home_tip(r)],
-                      contact_threshold=APPROACH_CH5_THRESHOLD)
+                      contact_threshold=APPROACH_CH5_THRESHOLD, **TANGENTIAL)
     else:       # chapter 3 laws regulate position: the force admittance holds the force
         values.update(desired_force=[0.0, 0.0, WIPE_FORCE], force_admittance_damping=50.0,
                       force_admittance_mass=1.0)
+    if scheme in ("adaptive_impedance", "robust_adaptive_impedance"):
+        values["c_hat_0"] = [C_HAT_0] * 3
     if scheme == "robust_adaptive_impedance":
         values.update(ROBUST_MODEL)
     if scheme == "nn_adaptive_impedance":

@@ -59,6 +59,21 @@ bounds the magnitude of both roots of m s^2 + D s + K. Not counted: the regulari
 Coulomb friction's slope mu f_n/eps (it depends on the force: set ``substeps`` by hand
 for stiff sliding) and changes of the apparent mass away from q_0.
 
+Robot side
+----------
+A real torque-controlled arm's driver adds its own compensation to every command:
+libfranka adds g(q) (franka_ros2 takes "desired joint torques without gravity"),
+ur_robot_driver's effort interface adds gravity and joint friction, KUKA FRI's torque mode
+is an overlay on a gravity-compensating joint impedance. ``robot_compensates_gravity`` and
+``robot_compensates_friction`` imitate that: the held torque is
+
+    tau = tau_cmd + G(q_k) [+ D q'_k + F tanh(q'_k/eps_q)]
+
+with (q_k, q'_k) the state the period starts from, as the robot computes it once per cycle
+(franka_ros2's Gazebo gravity compensation system and MuJoCo's ``gravcomp`` do the same in
+simulation). The brakes and the initial hold then leave G(q) out of their commands
+(:meth:`URDFSurface.gravity_torque`). ``/joint_states`` reports the held torque.
+
 Wrist sensor
 ------------
 ``sensor_frame`` empty (the default): the ideal sensor of the thesis plants, force = f (base
@@ -126,6 +141,7 @@ from numba import njit
 from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.models.urdf import (
     CONTINUOUS,
+    JOINT_FRICTION_EPSILON,
     ChainModel,
     RobotModelError,
     Tool,
@@ -147,8 +163,6 @@ from cr_sim.plants.base import (
 
 NAME = "urdf_surface"
 
-#: eps_q (rad/s, m/s): joint Coulomb friction F tanh(q'/eps_q) reaches 76 % of F at q' = eps_q.
-JOINT_FRICTION_EPSILON = 0.01
 #: Automatic substeps keep h omega_c at or below this.
 STEP_RATE_LIMIT = 0.5
 #: Surfaces by name.
@@ -212,6 +226,21 @@ PARAMETERS = [
           "tx, ty, tz (N m).", "vector", 6, read_only=True, bound=Bound.FORCE),
     Param("ft_noise_std", [0.0, 0.0], "White noise of the wrist sensor, std: force (N), torque "
           "(N m), on every component.", "nonnegative_vector", 2, read_only=True, bound=Bound.FORCE),
+    Param("robot_compensates_gravity", False, "The robot adds g(q) to every command itself, as "
+          "its driver does (franka_ros2: libfranka; ur_robot_driver's effort interface; KUKA FRI "
+          "torque mode): the command is the torque beyond gravity. G(q) is the chain's, with "
+          "the tool, at the state each period starts from, held over the period (libfranka "
+          "computes it once per 1 kHz cycle).", "bool", read_only=True),
+    Param("robot_compensates_friction", False, "The robot also adds the URDF's joint damping "
+          "and friction D q' + F tanh(q'/eps_q) to every command (ur_robot_driver's effort "
+          "interface compensates joint friction on the robot), at the state each period "
+          "starts from.", "bool", read_only=True),
+    Param("wrench_sign", 1, "Sign of the published wrench: 1 = the wrench on the tool (a wrist "
+          "sensor, UR's TCP sensor); -1 = its reaction, as franka users report Franka's "
+          "estimated external wrench O_F_ext_hat_K.", "integer", read_only=True, bound=1.0),
+    Param("sensor_removes_payload", False, "The wrist sensor's reading leaves the tool's weight "
+          "and inertia out (the robot removes its configured payload, as UR's built-in TCP "
+          "sensor does); the arm still carries the tool.", "bool", read_only=True),
     Param("start_clearance", 0.0, "The surface starts this far (m) from the tip, moved away along "
           "its outward normal: the robot starts above the table (sphere: the centre moves away).",
           "nonnegative", read_only=True, bound=Bound.LENGTH),
@@ -475,6 +504,16 @@ class URDFSurface(Plant):
         self.substeps = int(values["substeps"])
         self.max_contact_force = float(values["max_contact_force"])
         self._auto: tuple[float, int] = (math.nan, 1)
+        #: The robot's own compensation added to every command (module docstring, "Robot side").
+        if values["wrench_sign"] not in (1, -1):
+            raise ParameterError(f"wrench_sign must be 1 or -1, got {values['wrench_sign']}")
+        self._wrench_sign = float(values["wrench_sign"])
+        self.robot_compensates_gravity = bool(values["robot_compensates_gravity"])
+        self.robot_compensates_friction = bool(values["robot_compensates_friction"])
+        robot_side = self.robot_compensates_gravity or self.robot_compensates_friction
+        #: The last accepted command; the same array as the held torque unless the robot adds
+        #: its own compensation to it.
+        self._held = np.zeros(n) if robot_side else self._tau
 
     def _allocate(self) -> None:
         """The work array of the compiled glue (layout above) and the views of it the plant
@@ -492,7 +531,7 @@ class URDFSurface(Plant):
         self.surface = work[surface:qp]                # packed surface (contact3d): edit in place
         self._x = work[x:xs]                           # the state [q, q']
         self._vs = work[xs + n:xs + 2 * n]             # the stage velocities, for aba
-        self._tau = work[tau:total]                    # the held command
+        self._tau = work[tau:total]                    # the torque held: command + robot's own
         self._total = work[total:contact]              # the stage's total joint torque
         self._contact = work[contact:joint]            # [f (3), depth, r' (3)]
         self._qp = work[qp:end]                        # Pinocchio's q of the stage
@@ -521,7 +560,9 @@ class URDFSurface(Plant):
         point = frame.placement.actInv(tip.placement.translation)    # the tip in the sensor frame
         self._sensor = sensor
         self._sensor_data = model.createData()
-        self._packed_tool = contact3d.packed_tool(tool.mass, tool.com, tool.inertia_matrix, point,
+        seen = 0.0 if values["sensor_removes_payload"] else 1.0    # the reading's tool
+        self._packed_tool = contact3d.packed_tool(seen * tool.mass, tool.com,
+                                                  seen * tool.inertia_matrix, point,
                                                   model.gravity.linear, values["ft_bias"])
 
     def _live_tip_position(self) -> np.ndarray | None:
@@ -615,7 +656,9 @@ class URDFSurface(Plant):
         """Advance by dt with the joint torques ``command`` held (a refused command keeps the
         last): substeps_for(dt) classical RK4 steps, the contact force at every stage."""
         command = np.asarray(command, dtype=np.float64)
-        take_command(self._tau, command if command.ndim == 1 else self._none)
+        take_command(self._held, command if command.ndim == 1 else self._none)
+        if self._held is not self._tau:
+            self._tau[:] = self._held + self.robot_torque()
         substeps = self.substeps_for(dt)
         model, data, tip, frame = self.model, self._data, self._tip, pin.LOCAL_WORLD_ALIGNED
         work, qp, vs, total, r = self._work, self._qp, self._vs, self._total, self._tip_r
@@ -694,8 +737,28 @@ class URDFSurface(Plant):
 
     @property
     def applied_effort(self) -> np.ndarray:
-        """The joint torques held now (the last accepted command)."""
+        """The joint torques held now: the last accepted command plus, on a robot that adds
+        them, its own gravity and friction compensation (what the joints' torque sensors read
+        and ``/joint_states`` reports as effort)."""
         return self._tau.copy()
+
+    def robot_torque(self) -> np.ndarray:
+        """What the robot adds to a command at the current state (zeros when it adds nothing):
+        G(q) with ``robot_compensates_gravity``, D q' + F tanh(q'/eps_q) with
+        ``robot_compensates_friction``."""
+        n = self._n
+        q, v = self._x[:n], self._x[n:]
+        out = np.zeros(n)
+        if self.robot_compensates_gravity:
+            out += self.gravity(q)
+        if self.robot_compensates_friction:
+            out += self.chain.damping * v + self.chain.friction * np.tanh(v / JOINT_FRICTION_EPSILON)
+        return out
+
+    def gravity_torque(self, q: np.ndarray) -> np.ndarray:
+        """The command that holds the chain against gravity: G(q), or zeros on a robot that
+        adds G(q) itself (``robot_compensates_gravity``)."""
+        return np.zeros(self._n) if self.robot_compensates_gravity else self.gravity(q)
 
     def measurement(self) -> Measurement:
         """Joint state (noise on the chain's joints) and the wrench in ``wrench_frame``: the
@@ -717,6 +780,8 @@ class URDFSurface(Plant):
             v += v_std * self._rng.standard_normal(n)
             if ideal:
                 force += f_std * self._rng.standard_normal(3)
+        if self._wrench_sign < 0.0:
+            force, torque = -force, -torque
         zeros = np.zeros(locked)
         return Measurement(self._t, np.concatenate([q, self._locked_q]),
                            np.concatenate([v, zeros]), np.concatenate([self._tau, zeros]), force,
@@ -735,8 +800,8 @@ class URDFSurface(Plant):
 
     def safe_stop_command(self) -> np.ndarray:
         """The base class's brakes on the chain's joints (the locked ones take no command):
-        tau = G(q) - K_d q' - K_p (q - q_stop)."""
+        tau = G(q) - K_d q' - K_p (q - q_stop), without G(q) on a robot that adds it itself."""
         m, n = self.measurement(), self._n
         q, v = m.position[:n], m.velocity[:n]
         hold = self._brake_hold if self._brake_hold is not None else q
-        return self.gravity(q) - self.brake_damping * v - self.brake_stiffness * (q - hold)
+        return self.gravity_torque(q) - self.brake_damping * v - self.brake_stiffness * (q - hold)

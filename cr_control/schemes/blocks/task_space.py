@@ -100,6 +100,17 @@ ROBOT_PARAMETERS = [
     Param("gravity", [0.0, -9.8, 0.0], "Gravity in the base frame (m/s^2); the thesis arm moves "
           "in the vertical x-y plane (9.8 along -y), a URDF arm usually has [0, 0, -9.81].",
           "vector", 3, read_only=True, bound=Bound.GRAVITY),
+    Param("robot_compensates_gravity", False, "The robot adds g(q) to every command itself, as "
+          "torque-controlled arms' drivers do (franka_ros2: libfranka; ur_robot_driver's effort "
+          "interface; KUKA FRI torque mode; CRISP's use_gravity_compensation is off by default "
+          "for this reason): the command then leaves the arm's and the tool's gravity out. The "
+          "wrist sensor's tool compensation, zeroing and cr_identify_tool still use gravity. "
+          "Check this first on a real robot: a wrong value lifts the arm or lets it fall (the "
+          "start check stops it).", "bool", read_only=True),
+    Param("robot_compensates_friction", False, "The robot compensates its joints' friction "
+          "itself (ur_robot_driver's effort interface does); false: the controller adds the "
+          "URDF's <dynamics damping friction> torque D q' + F tanh(q'/0.01) to its command "
+          "(zero where the URDF gives none).", "bool", read_only=True),
     Param("model_mass_scale", 1.0, "The controller's model: every link mass times this (1 = the "
           "URDF's; a deliberately wrong model shows robustness).", "positive", read_only=True,
           bound=Bound.SCALE),
@@ -234,14 +245,17 @@ def _task_model(urdf: str, urdf_file: str, base: str, tip: str, gravity: tuple[f
 
 def task_model(values: dict, model_free: bool = False) -> TaskModel:
     """The task model of the robot named by the ROBOT_PARAMETERS ``values`` (cached;
-    ParameterError with a one-line reason if the robot cannot be built). With a wrist sensor
+    ParameterError with a one-line reason if the robot cannot be built). Its dynamics have no
+    gravity where the robot adds g(q) itself (``robot_compensates_gravity``). With a wrist sensor
     carrying a tool (``sensor_frame`` and ``tool_mass`` > 0, issue 24) the tool replaces what
     the URDF mounts beyond the sensor (:class:`cr_control.models.urdf.Tool`: a point mass at
     ``tool_com``), as on the arm it carries."""
     frame, mass = values.get("sensor_frame", ""), float(values.get("tool_mass", 0.0))
     tool = (frame, mass, tuple(float(c) for c in values["tool_com"])) if frame and mass > 0 else None
+    gravity = (0.0, 0.0, 0.0) if values.get("robot_compensates_gravity", False) else tuple(
+        float(g) for g in values["gravity"])
     return _task_model(values["robot_description"], values["urdf_file"], values["base_link"],
-                       values["tip_link"], tuple(float(g) for g in values["gravity"]),
+                       values["tip_link"], gravity,
                        float(values["model_mass_scale"]), float(values["model_inertia_scale"]),
                        model_free, tool)
 

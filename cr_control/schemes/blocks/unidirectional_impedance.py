@@ -65,12 +65,19 @@ def contact_parameters(m: int, thesis: bool) -> list[Param]:
               "here).", "vector", m, bound=Bound.SCALE),
         Param("m_m", 1.2, "Desired impedance inertia m_m (kg) (5.6; section 5.3: 1.2).",
               "positive", bound=Bound.MASS),
+        Param("tangential_stiffness", 0.0, "Impedance stiffness k_t (N/m) across the normal, in "
+              "the surface's tangent plane: stiff in the plane (friction holds a tool 3 N "
+              "behind its path: 50 mm at k_m = 60 N/m), compliant along the force; 0 = k_m on "
+              "every axis, as (5.6).", "nonnegative", bound=Bound.GAIN),
+        Param("tangential_damping", 0.0, "Impedance damping d_t (N s/m) in the tangent plane; "
+              "0 = d_m on every axis, as (5.6).", "nonnegative", bound=Bound.GAIN),
     ]
 
 
 def contact_gains(m: int) -> Layout:
     """Packed contact parameters (surface as SPHERE/PLANE, the normal normalised)."""
-    return Layout(f_dm=1, surface=1, surface_centre=m, surface_radius=1, surface_normal=m, m_m=1)
+    return Layout(f_dm=1, surface=1, surface_centre=m, surface_radius=1, surface_normal=m, m_m=1,
+                  tangential_stiffness=1, tangential_damping=1)
 
 
 def contact_gain_values(values: dict) -> dict:
@@ -84,7 +91,7 @@ def contact_gain_values(values: dict) -> dict:
 @njit(cache=True, error_model="numpy")
 def contact_gains_size(m):
     """contact_gains(m).size, for kernels (the scheme's own gains follow)."""
-    return 2 * m + 4
+    return 2 * m + 6
 
 
 #: Status fields of both chapter 5 schemes after the task-space ones: measured force along
@@ -127,10 +134,21 @@ def contact_state(contact, r, f, f_d_given, wrench_target, ramp):
 
 
 @njit(cache=True, error_model="numpy")
-def impedance_acceleration(contact, a_d, e, e_dot, f, f_d, d_m, k_m):
-    """The task acceleration of (5.7): r_d'' + m_m^-1 (d_m e_r' + k_m e_r + f - f_d)."""
+def impedance_acceleration(contact, a_d, e, e_dot, f, f_d, d_m, k_m, n):
+    """The task acceleration of (5.7): r_d'' + m_m^-1 (d_m e_r' + k_m e_r + f - f_d), with
+    d_m, k_m along the normal n and the tangential gains (``tangential_stiffness`` k_t,
+    ``tangential_damping`` d_t, where set) across it:
+    d_m e' + k_m e  ->  (d_m P_n + d_t P_t) e' + (k_m P_n + k_t P_t) e,  P_n = n n^T, P_t = I - P_n."""
     m = e.shape[0]
-    return a_d + (d_m * e_dot + k_m * e + f - f_d) / contact[3 + 2 * m]
+    k_t, d_t = contact[4 + 2 * m], contact[5 + 2 * m]
+    if k_t <= 0.0 and d_t <= 0.0:
+        return a_d + (d_m * e_dot + k_m * e + f - f_d) / contact[3 + 2 * m]
+    k_t = k_t if k_t > 0.0 else k_m
+    d_t = d_t if d_t > 0.0 else d_m
+    e_n, e_dot_n = np.sum(n * e), np.sum(n * e_dot)
+    spring = k_t * e + (k_m - k_t) * e_n * n
+    damper = d_t * e_dot + (d_m - d_t) * e_dot_n * n
+    return a_d + (damper + spring + f - f_d) / contact[3 + 2 * m]
 
 
 @njit(cache=True, error_model="numpy")

@@ -98,6 +98,12 @@ PARAMETERS = [
           "tip_link's body: panda_link8, tool0); every wrench must name it in its frame_id. "
           "Empty: an ideal sensor measuring the contact force in the base frame (the thesis "
           "plants; no compensation).", "string", read_only=True),
+    Param("wrench_sign", 1, "Sign convention of the wrench read: 1 = the wrench the "
+          "environment exerts on the tool (a wrist sensor through force_torque_sensor_broadcaster, "
+          "UR's TCP sensor); -1 = the reaction, the wrench the robot exerts on the environment "
+          "(as franka users report Franka's estimated external wrench, O_F_ext_hat_K / "
+          "K_F_ext_hat_K). The wrench is multiplied by it before anything else.", "integer",
+          read_only=True, bound=1.0),
     Param("tool_mass", 0.0, "Mass of everything the sensor carries (kg; cr_identify_tool "
           "estimates it): its weight m g is taken off the measured force and, with "
           "sensor_frame, it replaces what the URDF mounts beyond the sensor in the arm's "

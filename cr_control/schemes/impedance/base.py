@@ -37,7 +37,8 @@ import pinocchio as pin
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError, resolve
-from cr_control.schemes.blocks import contact_guard, references, wrist_sensor
+from cr_control.models.urdf import JOINT_FRICTION_EPSILON
+from cr_control.schemes.blocks import contact_guard, references, safe_stop, wrist_sensor
 from cr_control.schemes.blocks.references import TARGETS, reference_gains, reference_state
 from cr_control.schemes.blocks.task_space import (
     NULL_SPACE_GAINS,
@@ -128,7 +129,7 @@ class TaskSpaceController(Controller):
         own = {"joint_names": JOINT_NAMES, "max_effort": max_effort_on(
             next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model)}
         common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
-        return (common + cls.robot_parameters() + wrist_sensor.PARAMETERS
+        return (common + cls.robot_parameters() + safe_stop.PARAMETERS + wrist_sensor.PARAMETERS
                 + cls.reference_parameters(model.m, thesis) + NULL_SPACE_PARAMETERS
                 + cls.law_parameters(model, thesis))
 
@@ -192,6 +193,7 @@ class TaskSpaceController(Controller):
         n, m = self.model.n, self.model.m
         self.command_order = np.array([chain_joints.index(j) for j in values["joint_names"]],
                                       dtype=float)
+        self._order = self.command_order.astype(int)
         # the kernel clips each command to its URDF effort: Controller.step's saturation guard
         self.command_limits = self.model.limits[3 * n:][self.command_order.astype(int)].copy()
         self.common = common_gains_layout(n, m)
@@ -213,6 +215,30 @@ class TaskSpaceController(Controller):
         self._guard_seen = contact_guard.event_state(self.internal, self._guard_at, m)
         self._hold_data = None
         self._new_wrist_sensor()
+        self._robot_side()
+
+    def _robot_side(self) -> None:
+        """What the robot does and does not do for the law (``robot_compensates_*``): the
+        URDF joint friction the controller adds, the model its brake uses (real gravity,
+        whatever the law's model has) and the start check's indices."""
+        chain, values, n = self.model.chain_model, self.values, self.model.n
+        if values["wrench_sign"] not in (1, -1):
+            raise ParameterError(f"wrench_sign must be 1 or -1, got {values['wrench_sign']}")
+        self._reaction = values["wrench_sign"] == -1
+        friction = not values["robot_compensates_friction"] and (
+            np.any(chain.damping != 0.0) or np.any(chain.friction != 0.0))
+        self._friction = (chain.damping.copy(), chain.friction.copy()) if friction else None
+        self._brake_model = chain.model.copy()
+        self._brake_model.gravity.linear = np.asarray(values["gravity"], dtype=float)
+        self._brake_data = self._brake_model.createData()
+        self._brake_hold: np.ndarray | None = None
+        self._brake_stop = 0
+        self._brake_holds_gravity = not values["robot_compensates_gravity"]
+        axes = self.model.position_axes
+        self._i_tip_v = [self._status.index(f"v_{a}") - 1 for a in axes]
+        self._i_ref_v = [self.reference_fields.index(f"v_d_{a}") - 1 for a in axes]
+        self._gravity_axes = np.array([values["gravity"]["xyz".index(a)] for a in axes])
+        self._velocity_limit = self.model.limits[2 * n:3 * n].copy()
 
     def _new_wrist_sensor(self) -> None:
         """The wrist sensor's compensation and zeroing state, as at start."""
@@ -286,6 +312,8 @@ class TaskSpaceController(Controller):
         keeps the bias in use: call ``~/zero_ft`` out of contact for a new one."""
         seen = self._t0 is not None
         super().reset(keep_time)
+        self._brake_hold = None
+        self._brake_holds_gravity = not self.values["robot_compensates_gravity"]
         self._events_seen = self.internal[self._events_at]     # the guard's, from the start
         self._guard_seen = contact_guard.event_state(self.internal, self._guard_at, self.model.m)
         if seen:
@@ -320,6 +348,20 @@ class TaskSpaceController(Controller):
 
     # -- the cycle ---------------------------------------------------------------------------------
     def compute(self, t, dt, q, v, force) -> ControlOutput:
+        if self._reaction:
+            force = -force          # the robot reports the reaction (wrench_sign -1)
+        views = self._law(t, dt, q, v, force)
+        if self._friction is not None:
+            D, F = self._friction
+            views.command += (D * v + F * np.tanh(v / JOINT_FRICTION_EPSILON))[self._order]
+            self._report_command(views)
+        if not self.gave_up:
+            self._check_start(t, v, views)
+        return views
+
+    def _law(self, t, dt, q, v, force) -> ControlOutput:
+        """The law's cycle after the wrist sensor's compensation: the start-up hold, then
+        the law blended in from it."""
         out = self._output.new()
         if self.wrist.active:
             force = self.wrist.compensate(t, q, v, force)
@@ -332,9 +374,44 @@ class TaskSpaceController(Controller):
             G = self._gravity(q)
             views.command[:] = G + wrist_sensor.blend(t / wrist_sensor.HOLD_BLEND_S) * (
                 views.command - G)
-            if len(self._command_slots) == self.n_joints:
-                views.status[self._command_slots] = views.command
+            self._report_command(views)
         return views
+
+    def _report_command(self, views: ControlOutput) -> None:
+        """The status's command fields after the command was changed here."""
+        if len(self._command_slots) == self.n_joints:
+            views.status[self._command_slots] = views.command
+
+    def _check_start(self, t: float, v: np.ndarray, views: ControlOutput) -> None:
+        """The start check (:func:`safe_stop.start_check`); on a mismatch: give up, brake."""
+        if t >= self.values["start_check_time"]:
+            return
+        error = views.status[self._i_tip_v] - views.reference[self._i_ref_v]
+        mismatch = safe_stop.start_check(self.scheme, t, error, self._gravity_axes, v,
+                                         list(self.model.joint_names), self._velocity_limit,
+                                         self.values)
+        if mismatch is not None:
+            self._brake_holds_gravity = mismatch.brake_holds_gravity
+            self.give_up(mismatch.message)
+
+    @property
+    def brakes(self) -> bool:
+        return True
+
+    def brake_command(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """tau_b = G_b - M(q) (2 w_b q' + w_b^2 (q - q_b)) (:mod:`safe_stop`), q_b where
+        braking began; G_b the URDF's gravity with the tool where the robot does not add it
+        (or, after a failed start check, where it likely does not)."""
+        model, data = self._brake_model, self._brake_data
+        if self._brake_hold is None or self._brake_stop != self.stops:
+            self._brake_hold, self._brake_stop = q.copy(), self.stops     # each stop anew
+        qp = self.model.chain_model.configuration(q)
+        M = pin.crba(model, data, qp)
+        M = np.triu(M) + np.triu(M, 1).T
+        G = (np.array(pin.computeGeneralizedGravity(model, data, qp))
+             if self._brake_holds_gravity else None)
+        tau = safe_stop.brake_torque(M, G, q, v, self._brake_hold, self.values["brake_frequency"])
+        return tau[self._order]
 
     def cycle(self, t, dt, q, v, force, out: np.ndarray) -> ControlOutput:
         """The law's cycle into the output vector ``out`` (the contact force ``force`` in
@@ -361,8 +438,7 @@ class TaskSpaceController(Controller):
         Once the law runs, its command is blended in from G(q) over HOLD_BLEND_S."""
         views = self.cycle(0.0, 0.0, q, v, force, out)
         views.command[:] = self._gravity(q)
-        if len(self._command_slots) == self.n_joints:
-            views.status[self._command_slots] = views.command
+        self._report_command(views)
         return views
 
     def _log_guard_events(self, t: float) -> None:

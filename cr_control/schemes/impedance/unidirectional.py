@@ -45,7 +45,7 @@ def unidirectional_back(chain, gains, state, frame, f, r_d, v_d, a_d, quat_d, w_
     vector and the contact status (s with lambda)."""
     k_s, d_s = guard.scales(guard_state_of(state, e.shape[0], frame.q.shape[0]), e.shape[0])
     d_m, k_m = d_s * d_m, k_s * k_m
-    u = contact.impedance_acceleration(gains_contact, a_d, e, e_dot, f, f_d, d_m, k_m)
+    u = contact.impedance_acceleration(gains_contact, a_d, e, e_dot, f, f_d, d_m, k_m, n)
     tau = tmatvec(frame.J, model_force(chain, frame, u, frame.r_dot) - f)
     extras = task_back(gains, state, frame, tau, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out)
     s = contact.normal_sliding(n, e, e_dot, lam)

@@ -1,0 +1,185 @@
+"""The wiping task judged as a robot user judges it: by the true contact force and the path.
+
+One case runs a task-space scheme on a robot profile (:mod:`cr_control.tools.robots`) in the
+offline loop at the profile's rate, optionally on a 10x stiffer table, started
+``clearance`` above it, with the controller's model scaled, or with the controller's
+gravity setting the opposite of the robot's (a mismatch). Its figures (:func:`wiping_metrics`):
+
+- force error mean and RMS (N): the true normal force f_n (the plant's contact force along
+  the table's normal) against the desired normal force, over the second half of the run;
+- radial path RMS (m): | |r - c_d| - a_d | over the second half, with c_d, a_d the circle
+  the reference r_d draws (a least-squares circle through r_d in the table's plane), the
+  centre error |c - c_d| (m), c the circle fitted to the measured path r, and the path
+  error RMS |r - r_d| in the plane (m: a tool stuck on the circle has a small radial error
+  but not this);
+- impact speed (m/s): the tip's speed into the table when f_n first exceeds 0, the force
+  peak (N) over the run, the time without contact after the first touch (s), and the
+  sideways drift before contact (m: the tip's largest distance in the table's plane from
+  where it started);
+- the start check: whether and when the controller gave up, and the largest joint speed
+  (fraction of its URDF velocity limit).
+
+``python -m cr_control.experiments.wiping`` prints the table of every scheme on every profile
+(default and stiff table) and the mismatch cases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cr_control.tools import offline, robots
+
+#: The stiff table: this many times the default contact stiffness.
+STIFF_FACTOR = 10.0
+
+
+@dataclass(frozen=True)
+class Case:
+    """One wiping run (module docstring)."""
+
+    scheme: str
+    robot: str
+    table: str = "default"          # or "stiff"
+    clearance: float = 0.0          # m above the table at the start
+    model_scale: float = 1.0        # the controller's masses and inertias times this
+    mismatch: bool = False          # the controller's gravity setting opposite the robot's
+    duration: float = 8.0
+    controller: tuple = ()          # extra controller overrides ((name, value), ...)
+
+    def overrides(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """(controller, plant) overrides of the case."""
+        c: dict[str, Any] = dict(self.controller)
+        p: dict[str, Any] = {}
+        if self.table == "stiff":
+            p["stiffness"] = robots.TABLE_STIFFNESS * STIFF_FACTOR
+        if self.clearance:
+            p["start_clearance"] = self.clearance
+        if self.model_scale != 1.0:
+            c.update(model_mass_scale=self.model_scale, model_inertia_scale=self.model_scale)
+        if self.mismatch:
+            c["robot_compensates_gravity"] = not robots.robot(self.robot).robot_compensates_gravity
+        return c, p
+
+
+def circle_fit(xy: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares circle (Kasa fit) through the points ``xy`` (k x 2): centre, radius."""
+    A = np.column_stack([2.0 * xy, np.ones(len(xy))])
+    b = np.sum(xy * xy, axis=1)
+    (cx, cy, c), *_ = np.linalg.lstsq(A, b, rcond=None)
+    return np.array([cx, cy]), math.sqrt(max(c + cx * cx + cy * cy, 0.0))
+
+
+def wiping_metrics(run: offline.OfflineRun, controller: Any) -> dict[str, float]:
+    """The case's figures (module docstring) from an offline run on a table of normal +z."""
+    t = run.time
+    f_n = run.true_force[:, 2]
+    f_d = run.column("f_d_z")
+    r = np.column_stack([run.column("r_x"), run.column("r_y")])
+    r_d = np.column_stack([run.column("r_d_x"), run.column("r_d_y")])
+    late = t >= t[0] + 0.5 * (t[-1] - t[0])
+    out: dict[str, float] = {}
+    error = f_n[late] - f_d[late]
+    out["force_err_mean_N"] = float(np.mean(error))
+    out["force_err_rms_N"] = float(np.sqrt(np.mean(error * error)))
+    c_d, a_d = circle_fit(r_d[late])
+    c, _ = circle_fit(r[late])
+    radial = np.linalg.norm(r[late] - c_d, axis=1) - a_d
+    out["radial_rms_m"] = float(np.sqrt(np.mean(radial * radial)))
+    out["centre_err_m"] = float(np.linalg.norm(c - c_d))
+    path = np.linalg.norm(r[late] - r_d[late], axis=1)
+    out["path_err_rms_m"] = float(np.sqrt(np.mean(path * path)))
+    touched = np.flatnonzero(f_n > 0.0)
+    first = int(touched[0]) if touched.size else len(t)
+    out["impact_speed_m_s"] = float(max(-run.column("v_z")[first], 0.0)) if touched.size else math.nan
+    out["force_peak_N"] = float(np.max(f_n))
+    period = float(np.median(np.diff(t)))
+    out["contact_lost_s"] = float(np.sum(f_n[first:] <= 0.0) * period)
+    drift = np.linalg.norm(r[:max(first, 1)] - r[0], axis=1)
+    out["drift_before_contact_m"] = float(np.max(drift))
+    n = len(controller.state_joint_names)
+    limits = controller.model.limits[2 * n:3 * n]
+    speed = np.abs(run.velocity[:, :n]) / np.where(np.isfinite(limits), limits, np.inf)
+    out["joint_speed_max_fraction"] = float(np.max(speed))
+    out["gave_up"] = float(controller.gave_up)
+    return out
+
+
+def run_case(case: Case) -> tuple[dict[str, float], list[str]]:
+    """Run ``case``: its figures and the controller's error lines (the start check's)."""
+    c, p = case.overrides()
+    controller, plant = offline.build_scheme(case.scheme, c, p, case.robot)
+    errors: list[str] = []
+    controller.log_error = errors.append
+    controller.log_warning = controller.log_info = lambda message: None
+    gave_up_at: list[float] = []
+
+    def watch(k: int, t: float, ctl: Any, _plant: Any) -> None:
+        if ctl.gave_up and not gave_up_at:
+            gave_up_at.append(t)
+
+    run = offline.run(controller, plant, case.duration, offline.robot_period(case.robot), watch)
+    values = wiping_metrics(run, controller)
+    values["gave_up_at_s"] = gave_up_at[0] if gave_up_at else math.nan
+    return values, errors
+
+
+#: (figure, column head, scale, decimals) of the printed table.
+COLUMNS = [("force_err_mean_N", "F err mean N", 1.0, 3), ("force_err_rms_N", "F err RMS N", 1.0, 3),
+           ("radial_rms_m", "radial RMS mm", 1e3, 2), ("centre_err_m", "centre mm", 1e3, 2),
+           ("path_err_rms_m", "path RMS mm", 1e3, 2),
+           ("impact_speed_m_s", "impact m/s", 1.0, 3), ("force_peak_N", "F peak N", 1.0, 2),
+           ("contact_lost_s", "lost s", 1.0, 3), ("drift_before_contact_m", "drift mm", 1e3, 2)]
+
+
+def _cell(value: float, scale: float, decimals: int) -> str:
+    return f"{value * scale:.{decimals}f}" if math.isfinite(value) else "-"
+
+
+def table(cases: list[Case], progress: bool = True) -> str:
+    """A markdown table of ``cases``."""
+    head = ["scheme", "robot", "table", "clear. m", "model"] + [c[1] for c in COLUMNS]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for i, case in enumerate(cases):
+        if progress:
+            print(f"[{i + 1}/{len(cases)}] {case.scheme} on {case.robot} ({case.table})",
+                  file=sys.stderr, flush=True)
+        values, _ = run_case(case)
+        row = [case.scheme, case.robot, case.table, f"{case.clearance:g}", f"{case.model_scale:g}"]
+        row += [_cell(values[k], s, d) for k, _, s, d in COLUMNS]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m cr_control.experiments.wiping",
+                                description="The wiping task on every profile (module docstring).")
+    p.add_argument("--schemes", default=",".join(robots.TASK_SPACE_SCHEMES))
+    p.add_argument("--robots", default=",".join(robots.ROBOTS))
+    p.add_argument("--tables", default="default,stiff")
+    p.add_argument("--clearance", type=float, default=0.0)
+    p.add_argument("--model-scale", type=float, default=1.0)
+    p.add_argument("--duration", type=float, default=8.0)
+    args = p.parse_args(argv)
+    try:
+        cases = [Case(s, r, tb, args.clearance, args.model_scale, duration=args.duration)
+                 for s in args.schemes.split(",") for r in args.robots.split(",")
+                 for tb in args.tables.split(",")]
+        for case in cases:
+            robots.robot(case.robot)
+            if case.scheme not in robots.TASK_SPACE_SCHEMES:
+                raise ValueError(f"{case.scheme} is not a task-space scheme")
+    except ValueError as exc:
+        print(f"wiping: {exc}", file=sys.stderr)
+        return 2
+    print(table(cases))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

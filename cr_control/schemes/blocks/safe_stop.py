@@ -1,0 +1,106 @@
+"""What a task-space controller does when it gives up, through the robot's real interface.
+
+A real robot's command interface (ros2_control's forward_command_controller, libfranka's
+torque callback) applies the last command it got for as long as no new one comes: "stop
+commanding" is not a safe stop there. So a controller that gives up keeps publishing a
+braking command, computed each cycle from the measured state:
+
+    tau_b = G_b(q) - M(q) (2 w_b q' + w_b^2 (q - q_b))
+
+a joint-space PD scaled by the URDF's mass matrix M(q) (every joint a critically damped
+second-order system of natural frequency w_b = ``brake_frequency``, whatever its inertia:
+a damping fixed in N m s/rad that brakes the Panda's elbow would make its light wrist
+chatter, K_d dt / M_77 > 2), holding the joints near q_b, where braking began. G_b is the
+arm's and the tool's gravity where the robot does not add it itself, else zero.
+
+The start check finds a gravity setting that does not match the robot, or a grossly wrong
+model, in the controller's first ``start_check_time`` seconds: while the law holds the arm
+or approaches at ``approach_speed``, the tip must not move faster than its reference by
+more than ``start_speed_error``, nor any joint faster than half its URDF velocity limit. A
+controller that adds g(q) on a robot that adds it too lifts the arm against gravity; one
+that leaves it out on a robot that does not lets the arm fall: the direction of the tip's
+velocity error along gravity names the likely cause. The brake then holds gravity only if
+the robot likely does not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cr_control.core.parameters import Bound, Param
+
+#: The start check also stops a joint faster than this fraction of its URDF velocity limit.
+JOINT_SPEED_FRACTION = 0.5
+
+PARAMETERS = [
+    Param("start_check_time", 1.0, "Start check: for this long (s) after the first state the "
+          "tip must not move faster than its reference by more than start_speed_error, nor a "
+          "joint faster than half its URDF velocity limit; else the controller brakes, saying "
+          "why (a gravity setting that does not match the robot, or a grossly wrong model); "
+          "0 = off.", "nonnegative", bound=60.0),
+    Param("start_speed_error", 0.15, "Start check: largest tip speed beyond the reference's "
+          "(m/s); 3 x the robots' approach_speed.", "positive", bound=Bound.SPEED),
+    Param("brake_frequency", 10.0, "Braking command of a controller that gives up: natural "
+          "frequency w_b (rad/s) of tau = G - M(q) (2 w_b q' + w_b^2 (q - q_b)), critically "
+          "damped on every joint whatever its inertia.", "positive", bound=1000.0),
+]
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    """A failed start check: the one line to log and whether the brake should hold gravity."""
+
+    message: str
+    brake_holds_gravity: bool
+
+
+def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.ndarray,
+                joint_speed: np.ndarray, joint_names: list[str], velocity_limit: np.ndarray,
+                values: dict) -> Mismatch | None:
+    """The start check at controller time ``t`` (module docstring): None while it passes.
+
+    ``tip_speed_error`` = r' - r_d' (base frame, the position axes), ``gravity`` the same
+    axes of the gravity vector, ``joint_speed`` q' and ``velocity_limit`` (inf: none) in
+    ``joint_names`` order."""
+    window = values["start_check_time"]
+    if not 0.0 <= t < window:
+        return None
+    speed = math.sqrt(float(tip_speed_error @ tip_speed_error))
+    fast = [(abs(float(w)) / lim, name, float(w), float(lim))
+            for w, name, lim in zip(joint_speed, joint_names, velocity_limit, strict=True)
+            if 0.0 < lim < math.inf and abs(w) > JOINT_SPEED_FRACTION * lim]
+    limit = values["start_speed_error"]
+    if speed <= limit and not fast:
+        return None
+    g_norm = math.sqrt(float(gravity @ gravity))
+    along = float(tip_speed_error @ gravity) / g_norm if g_norm > 0.0 else 0.0
+    robot_adds = bool(values["robot_compensates_gravity"])
+    what = (f"the tip moves {speed:.3g} m/s off its reference at t = {t:.3f} s (start check: "
+            f"{limit:g} m/s)")
+    if fast:
+        _, name, w, lim = max(fast)
+        what += f", {name} at {w:+.3g} rad/s (limit {lim:g})"
+    if along < -0.5 * speed and not robot_adds:
+        cause = ("rising against gravity: the robot likely compensates gravity itself; set "
+                 "robot_compensates_gravity: true")
+        holds = False
+    elif along > 0.5 * speed and robot_adds:
+        cause = ("falling with gravity: the robot likely does not compensate gravity; set "
+                 "robot_compensates_gravity: false")
+        holds = True
+    else:
+        cause = ("check robot_compensates_gravity first, then the model (model_mass_scale, "
+                 "tool_mass) and the gains")
+        holds = not robot_adds
+    return Mismatch(f"{scheme}: {what}: {cause}. Braking until reactivated", holds)
+
+
+def brake_torque(M: np.ndarray, gravity: np.ndarray | None, q: np.ndarray, v: np.ndarray,
+                 hold: np.ndarray, frequency: float) -> np.ndarray:
+    """tau_b = G_b - M (2 w_b q' + w_b^2 (q - q_b)) (module docstring); ``gravity`` None: G_b = 0."""
+    w = frequency
+    tau = -M @ (2.0 * w * v + w * w * (q - hold))
+    return tau if gravity is None else tau + gravity
