@@ -7,8 +7,9 @@ ROS domain, or a restarted plant).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
-import struct
 from array import array
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -26,8 +27,6 @@ from mcap_ros2.decoder import DecoderFactory
 from cr_control.core import ros_yaml, topics
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-#: What the MCAP readers raise on damaged or truncated data.
-_READ_ERRORS = (McapError, ValueError, EOFError, struct.error)
 PARAMETERS_PREFIX = "parameters/"
 
 
@@ -143,6 +142,9 @@ def _check_readable(path: Path) -> None:
         raise SessionError(f"{path}: no such file")
     if path.is_dir():
         raise SessionError(f"{path}: is a directory, not an MCAP file")
+    if not path.is_file():  # opening a named pipe would wait for a writer for ever
+        raise SessionError(f"{path}: not a regular file (a pipe, device or socket), not an "
+                           "MCAP file")
     try:
         with open(path, "rb") as f:
             magic = f.read(len(MCAP_MAGIC))
@@ -152,18 +154,38 @@ def _check_readable(path: Path) -> None:
         raise SessionError(f"{path}: not an MCAP file")
 
 
+def _reason(exc: BaseException) -> str:
+    """An exception in a short line: its type (when the text alone says little) and text."""
+    text = (str(exc).splitlines() or [""])[0]
+    if len(text) > 120:
+        text = text[:117] + "..."
+    known = isinstance(exc, (McapError, ValueError, EOFError)) and text
+    return text if known else f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
 def _iter_messages(path: Path, warnings: list[str], metadata: dict[str, dict[str, str]],
                    ) -> Iterator[tuple[Schema | None, Channel, Message]]:
-    """Messages in file order (filling ``metadata``); tolerates a file cut short."""
+    """Messages in file order (filling ``metadata``); tolerates a file cut short.
+
+    The one place the mcap reader reads the file. On damaged data it raises more than its
+    own errors (a corrupt chunk: a decompression error, a KeyError for a channel id the
+    summary lacks, an OverflowError for a length too large to read, ...): whatever it
+    raises ends the reading, as a SessionError if the file has a summary (it claims to be
+    complete), as a warning if it was cut short (read as far as the data goes).
+    """
     with open(path, "rb") as f:
         reader = make_reader(f)
         try:
             summary = reader.get_summary()
-        except _READ_ERRORS:
+        except Exception:
             summary = None
         if summary is not None:
-            metadata.update({m.name: dict(m.metadata) for m in reader.iter_metadata()})
-            yield from reader.iter_messages(log_time_order=False)
+            try:
+                metadata.update({m.name: dict(m.metadata) for m in reader.iter_metadata()})
+                yield from reader.iter_messages(log_time_order=False)
+            except Exception as exc:
+                raise SessionError(f"{path}: damaged MCAP file, stopped at a corrupt record "
+                                   f"({_reason(exc)})") from exc
             return
         # No summary (recording cut short): read linearly as far as the data goes.
         f.seek(0)
@@ -182,8 +204,8 @@ def _iter_messages(path: Path, warnings: list[str], metadata: dict[str, dict[str
                     yield schemas.get(channel.schema_id), channel, record
                 elif isinstance(record, Metadata):
                     metadata[record.name] = dict(record.metadata)
-        except _READ_ERRORS as exc:
-            warnings.append(f"file ends early ({exc}); read {count} messages")
+        except Exception as exc:
+            warnings.append(f"file ends early ({_reason(exc)}); read {count} messages")
 
 
 def _stamp(msg: Any) -> float:
@@ -310,6 +332,18 @@ def _publisher_count(channel: Channel) -> int | None:
     return len(offered) if isinstance(offered, list) and offered else None
 
 
+def _decoder(path: Path, factory: DecoderFactory, channel: Channel, schema: Schema | None) -> Any:
+    """The decoder of a channel's messages (None: not ROS 2 CDR); SessionError if its schema
+    does not parse (the parser's own complaint on stderr is dropped: the error says it)."""
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            return factory.decoder_for(channel.message_encoding, schema)
+    except Exception as exc:
+        name = schema.name if schema is not None else "?"
+        raise SessionError(f"{path}: {channel.topic}: its schema {name} does not parse "
+                           f"({_reason(exc)})") from None
+
+
 def load_session(path: str | Path) -> Session:
     """Read a recorded session; raises :class:`SessionError` for files it cannot use."""
     path = Path(path)
@@ -317,7 +351,9 @@ def load_session(path: str | Path) -> Session:
     session = Session(path)
     metadata: dict[str, dict[str, str]] = {}
     factory = DecoderFactory()
+    decoders: dict[int, Any] = {}  # channel id -> decoder (None: not decoded)
     accumulators: dict[str, Any] = {}
+    kinds: dict[str, str] = {}  # topic -> the type its accumulator reads
     publishers: dict[str, int] = {}  # topic -> publishers over its channels
     channels_seen: set[int] = set()
     try:
@@ -333,7 +369,12 @@ def load_session(path: str | Path) -> Session:
             if kind not in (_JOINT_STATE, _WRENCH, _ARRAY) or accumulators.get(
                     topic, True) is None:
                 continue
-            decoder = factory.decoder_for(channel.message_encoding, schema)
+            if kinds.setdefault(topic, kind) != kind:
+                raise SessionError(f"{path}: {topic} was recorded with two types, "
+                                   f"{kinds[topic]} and {kind}")
+            if channel.id not in decoders:
+                decoders[channel.id] = _decoder(path, factory, channel, schema)
+            decoder = decoders[channel.id]
             if decoder is None:
                 continue
             try:
@@ -341,12 +382,16 @@ def load_session(path: str | Path) -> Session:
             except Exception as exc:  # a corrupt message must not end the analysis
                 session.warnings.append(f"{topic}: undecodable message skipped ({exc})")
                 continue
-            if topic not in accumulators:
-                accumulators[topic] = _accumulator(kind, msg)
-            if accumulators[topic] is not None:
-                accumulators[topic].add(msg)
-    except (*_READ_ERRORS, OSError) as exc:
-        raise SessionError(f"{path}: unreadable MCAP file ({exc})") from exc
+            try:
+                if topic not in accumulators:
+                    accumulators[topic] = _accumulator(kind, msg)
+                if accumulators[topic] is not None:
+                    accumulators[topic].add(msg)
+            except (AttributeError, TypeError, IndexError) as exc:
+                raise SessionError(f"{path}: {topic}: the recording's {kind} schema is not "
+                                   f"ROS's ({exc})") from None
+    except OSError as exc:
+        raise SessionError(f"{path}: unreadable MCAP file ({exc.strerror or exc})") from exc
 
     for topic, acc in accumulators.items():
         if isinstance(acc, _LabelledTopic):
