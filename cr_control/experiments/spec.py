@@ -19,7 +19,9 @@ random draws (uniform, or log-uniform with ``log: true``; a list next to ranges 
 from uniformly). A number given for a list or matrix parameter means that number on every
 element (a matrix given by its diagonal: x I). Every value is checked against the
 parameter's own declaration (:class:`cr_control.core.parameters.Param`: kind, size, bound)
-before anything runs, so a bad SPEC fails with one line (:class:`SpecError`).
+before anything runs, so a bad SPEC fails with one line (:class:`SpecError`). The file is
+read as :func:`read_yaml` reads it (at most 1 MiB, no YAML aliases); a value quoted in a
+message is cut to 80 characters.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import yaml
 
 from cr_control.core import ros_yaml
 from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, Param, ParameterError, resolve
+from cr_control.core.parameters import _shown as shown  # a value in a message, cut to 80 chars
 from cr_control.schemes.registry import SCHEMES, controller_class, default_scenario
 
 KEYS = ("scheme", "robot", "duration", "vary", "samples", "seed", "metrics", "set")
@@ -108,14 +111,14 @@ class Targets:
         """The Param of ``node.param`` (SpecError if there is none)."""
         node, dot, key = name.partition(".")
         if not dot or not node or not key:
-            raise SpecError(f"{name!r} is not of the form node.param (node: {self.scheme} or "
-                            f"{PLANT})")
+            raise SpecError(f"{shown(name)} is not of the form node.param (node: {self.scheme} "
+                            f"or {PLANT})")
         table = {self.scheme: self.controller, PLANT: self.plant}.get(node)
         if table is None:
-            raise SpecError(f"{name}: no node {node!r} in an offline run of {self.scheme} "
-                            f"(nodes: {self.scheme}, {PLANT})")
+            raise SpecError(f"{shown(name)}: no node {shown(node)} in an offline run of "
+                            f"{self.scheme} (nodes: {self.scheme}, {PLANT})")
         if key not in table:
-            raise SpecError(f"{name}: unknown parameter {key!r} of {node}")
+            raise SpecError(f"{name[:80]}: unknown parameter {shown(key)} of {node}")
         return table[key]
 
     def split(self, values: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -164,6 +167,8 @@ def targets(scheme: str, robot: str | None) -> Targets:
         controller_base: dict[str, Any] = {}
         plant_base = offline.scheme_plant_overrides(scheme)
     else:
+        if robot not in robots.ROBOTS:
+            raise SpecError(f"robot: unknown robot {shown(robot)}; known: {sorted(robots.ROBOTS)}")
         try:
             r = robots.robot(robot)
             controller_base = robots.controller_values(r, scheme)
@@ -181,24 +186,25 @@ def targets(scheme: str, robot: str | None) -> Targets:
 
 def _number(value: Any, what: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise SpecError(f"{what} must be a finite number, got {value!r}")
+        raise SpecError(f"{what} must be a finite number, got {shown(value)}")
     return float(value)
 
 
 def _integer(value: Any, what: str, low: int, high: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise SpecError(f"{what} must be an integer in [{low}, {high}], got {value!r}")
+        raise SpecError(f"{what} must be an integer in [{low}, {high}], got {shown(value)}")
     return value
 
 
 def _range(name: str, body: dict[str, Any], param: Param) -> Range:
     unknown = set(body) - {"low", "high", "log"}
     if unknown or not {"low", "high"} <= set(body):
-        raise SpecError(f"vary: {name}: a range is {{low, high, log}}, got keys {sorted(body)}")
+        raise SpecError(f"vary: {name}: a range is {{low, high, log}}, got keys "
+                        f"{shown(sorted(map(str, body)))}")
     low, high = _number(body["low"], f"{name}.low"), _number(body["high"], f"{name}.high")
     log = body.get("log", False)
     if not isinstance(log, bool):
-        raise SpecError(f"vary: {name}.log must be true or false, got {log!r}")
+        raise SpecError(f"vary: {name}.log must be true or false, got {shown(log)}")
     if not low < high:
         raise SpecError(f"vary: {name}: low ({low}) must be below high ({high})")
     if log and low <= 0:
@@ -216,7 +222,7 @@ def check_keys(data: Any, keys: Sequence[str], required: Sequence[str], source: 
         raise SpecError(f"{source}: a mapping with keys {', '.join(keys)} is expected")
     unknown = [k for k in data if k not in keys]
     if unknown:
-        raise SpecError(f"{source}: unknown key {unknown[0]!r} (keys: {', '.join(keys)})")
+        raise SpecError(f"{source}: unknown key {shown(unknown[0])} (keys: {', '.join(keys)})")
     for key in required:
         if key not in data:
             raise SpecError(f"{source}: missing key {key!r}")
@@ -229,10 +235,10 @@ def parse_spec(data: Any, source: str = "SPEC") -> tuple[SweepSpec, Targets]:
     check_keys(data, KEYS, ("scheme", "duration", "vary"), source)
     scheme = data["scheme"]
     if scheme not in SCHEMES:
-        raise SpecError(f"scheme: unknown scheme {scheme!r} (known: {', '.join(sorted(SCHEMES))})")
+        raise SpecError(f"scheme: unknown scheme {shown(scheme)} (known: {', '.join(sorted(SCHEMES))})")
     robot = data.get("robot")
     if robot is not None and not isinstance(robot, str):
-        raise SpecError(f"robot must be a robot name, got {robot!r}")
+        raise SpecError(f"robot must be a robot name, got {shown(robot)}")
     duration = _number(data["duration"], "duration")
     if not 0 < duration <= MAX_DURATION_S:
         raise SpecError(f"duration must be in (0, {MAX_DURATION_S:g}] s, got {duration:g}")
@@ -257,10 +263,10 @@ def parse_spec(data: Any, source: str = "SPEC") -> tuple[SweepSpec, Targets]:
             vary[name] = values
         else:
             raise SpecError(f"vary: {name} must be a list of values or a range "
-                            f"{{low, high, log}}, got {values!r}")
+                            f"{{low, high, log}}, got {shown(values)}")
     fixed_in = data.get("set") or {}
     if not isinstance(fixed_in, dict):
-        raise SpecError(f"set must be a mapping node.param -> value, got {fixed_in!r}")
+        raise SpecError(f"set must be a mapping node.param -> value, got {shown(fixed_in)}")
     fixed = {str(k): v for k, v in fixed_in.items()}
     overlap = sorted(set(fixed) & set(vary))
     if overlap:
@@ -284,20 +290,27 @@ def parse_spec(data: Any, source: str = "SPEC") -> tuple[SweepSpec, Targets]:
     metrics = data.get("metrics")
     if metrics is not None and (not isinstance(metrics, list) or not metrics
                                 or not all(isinstance(m, str) for m in metrics)):
-        raise SpecError(f"metrics must be a non-empty list of metric names, got {metrics!r}")
+        raise SpecError(f"metrics must be a non-empty list of metric names, got {shown(metrics)}")
     spec = SweepSpec(scheme, duration, vary, robot, samples, seed, metrics, fixed)
     return spec, t
 
 
-def load_spec(path: str | Path) -> tuple[SweepSpec, Targets]:
-    """:func:`parse_spec` of the YAML file ``path`` (SpecError if unreadable or not YAML)."""
-    path = Path(path)
+def read_yaml(path: str | Path) -> Any:
+    """The YAML file ``path`` (a sweep's or a tune SPEC) as data; SpecError (one line) if it
+    cannot be read, is not a regular file, is larger than 1 MiB (ros_yaml.MAX_FILE_BYTES),
+    is not valid YAML or uses aliases (they can expand exponentially)."""
     try:
-        text = path.read_text()
+        text = ros_yaml.read_file(path)
     except OSError as exc:
         raise SpecError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except ValueError as exc:
+        raise SpecError(f"{path}: {exc}") from None
     try:
-        data = ros_yaml.load(text)
+        return ros_yaml.load(text)
     except yaml.YAMLError as exc:
         raise SpecError(f"{path}: not valid YAML: {ros_yaml.describe_error(exc)}") from None
-    return parse_spec(data, str(path))
+
+
+def load_spec(path: str | Path) -> tuple[SweepSpec, Targets]:
+    """:func:`parse_spec` of the YAML file ``path`` (SpecError as :func:`read_yaml` says)."""
+    return parse_spec(read_yaml(path), str(path))

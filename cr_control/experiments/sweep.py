@@ -26,7 +26,7 @@ from typing import Any
 from cr_control.experiments import engine, plots, table
 from cr_control.experiments.points import points
 from cr_control.experiments.progress import Progress
-from cr_control.experiments.spec import SpecError, SweepSpec, Targets, load_spec
+from cr_control.experiments.spec import SpecError, SweepSpec, Targets, load_spec, shown
 from cr_control.experiments.store import Store
 
 #: Simulated seconds (at most) of the run that learns the metric names when the SPEC lists
@@ -80,7 +80,7 @@ def check_metrics(spec: SweepSpec, targets: Targets, known: Iterable[str] | None
     names = set(known) - set(table.STATUS)
     unknown = [m for m in spec.metrics if m not in names]
     if unknown:
-        raise SpecError(f"metrics: unknown metric {unknown[0]!r} (known: "
+        raise SpecError(f"metrics: unknown metric {shown(unknown[0])} (known: "
                         f"{', '.join(sorted(names))})")
 
 

@@ -38,9 +38,17 @@ from typing import Any
 
 import yaml
 
-from cr_control.core import ros_yaml
 from cr_control.experiments import engine
-from cr_control.experiments.spec import PLANT, Range, SpecError, Targets, check_keys, parse_spec
+from cr_control.experiments.spec import (
+    PLANT,
+    Range,
+    SpecError,
+    Targets,
+    check_keys,
+    parse_spec,
+    read_yaml,
+    shown,
+)
 
 KEYS = ("scheme", "duration", "metric", "search", "samples", "seed", "set", "scenarios",
         "held_out")
@@ -72,12 +80,7 @@ def _max_effort(fixed: dict[str, Any], targets: Targets) -> float:
 
 def load(path: Path) -> tuple[dict[str, Any], Targets]:
     """The checked tune SPEC and its parameters (SpecError, one line)."""
-    try:
-        data = ros_yaml.load(Path(path).read_text())
-    except OSError as exc:
-        raise SpecError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise SpecError(f"{path}: not valid YAML: {ros_yaml.describe_error(exc)}") from None
+    data = read_yaml(path)
     check_keys(data, KEYS, ("metric", "search", "held_out"), str(path))
     search = data["search"]
     if not isinstance(search, dict) or not search or \
@@ -100,7 +103,7 @@ def load(path: Path) -> tuple[dict[str, Any], Targets]:
         raise SpecError("held_out must map node.param to the validation scenario's values")
     targets.check({**spec.fixed, **held_out})
     if not isinstance(data["metric"], str):
-        raise SpecError(f"metric must be a metric name, got {data['metric']!r}")
+        raise SpecError(f"metric must be a metric name, got {shown(data['metric'])}")
     from cr_control.experiments.sweep import check_metrics
 
     spec.metrics = [data["metric"]]
