@@ -2,16 +2,22 @@
 profile ``ros2``, ``ros2msg`` schemas, ``cdr`` channels with their QoS metadata, chunks
 with message indexes and CRCs, a summary section and the ``rosbag2`` metadata record.
 Messages are appended as received (serialized CDR), one ``struct.pack`` per message.
+
+A write that fails (the disk full, an I/O error) leaves a file a reader can use: the file
+is cut back to its last whole record and closed, without a summary (readers then read it
+linearly, as a recording cut short), and the OSError is raised to the caller.
 """
 
 from __future__ import annotations
 
+import bisect
 import os
 import struct
 import sys
 import zlib
 from array import array
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,7 +99,10 @@ class McapBagWriter:
     Lean on the hot path: a message is one ``struct.pack`` and two appends to the open
     chunk (a bytearray) plus two to its channel's message index (an ``array``); the
     records written once per chunk or file use the ``mcap`` package's record classes.
-    Not thread-safe. :meth:`close` must be called to leave a complete file.
+    Not thread-safe. :meth:`close` must be called to leave a complete file. If writing the
+    file fails (OSError: disk full, I/O error), the file is cut back to its last whole record
+    and closed (see the module doc), :attr:`error` holds the error, and every later write
+    raises it again; :meth:`close` then does nothing.
     """
 
     path: Path
@@ -106,6 +115,8 @@ class McapBagWriter:
     _end_ns: int = field(default=0, init=False)
     _count: int = field(default=0, init=False)
     _closed: bool = field(default=False, init=False)
+    #: The OSError that stopped the writing (None: none).
+    error: OSError | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -124,13 +135,48 @@ class McapBagWriter:
         self._metadata_indexes: list[MetadataIndex] = []
         self._metadata_count = 0
         self._chunk_count = 0
-        self._stream.write(MCAP0_MAGIC)
-        self._write_records(Header(profile="ros2", library="cr_control recorder (mcap-python records)"))
+        self._ends = [0]  # file offsets where a group of whole records ends, ascending
+        with self._writing():
+            self._stream.write(MCAP0_MAGIC)
+            self._write_records(Header(profile="ros2",
+                                       library="cr_control recorder (mcap-python records)"))
 
     @property
     def message_count(self) -> int:
         """Messages written so far."""
         return self._count
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Around each group of writes to the file: after it the file ends with a whole
+        record; if it raises OSError, the file is cut back to the last whole record and
+        closed (:meth:`_abandon`) and the error raised again."""
+        if self.error is not None:
+            raise OSError(self.error.errno, self.error.strerror, str(self.path))
+        try:
+            yield
+        except OSError as exc:
+            self._abandon(exc)
+            raise
+        self._ends.append(self._stream.tell())
+
+    def _abandon(self, exc: OSError) -> None:
+        """Stop writing after ``exc``: drop what is buffered, cut the file back to the end of
+        the last whole record that reached it, close it."""
+        if self.error is not None:
+            return
+        self.error = exc
+        self._closed = True
+        raw = getattr(self._stream, "raw", self._stream)
+        try:
+            fd = raw.fileno()
+            size = os.fstat(fd).st_size
+            os.ftruncate(fd, self._ends[bisect.bisect_right(self._ends, size) - 1])
+        except OSError:
+            pass  # e.g. not a regular file: left as written
+        finally:
+            raw.close()  # the buffer's bytes are not written: the BufferedWriter is closed too
+            self._chunk = bytearray()
 
     def _write_records(self, *records: Any) -> int:
         """Write records straight into the data section; returns the offset of the first."""
@@ -207,7 +253,8 @@ class McapBagWriter:
         self._chunk_messages += 1
         self._count += 1
         if len(chunk) > self.chunk_size:
-            self._finish_chunk()
+            with self._writing():
+                self._finish_chunk()
 
     def _finish_chunk(self) -> None:
         """Write the open chunk and its message indexes (nothing if it holds no message)."""
@@ -254,8 +301,9 @@ class McapBagWriter:
         builder = RecordBuilder()
         Metadata(name=name, metadata=data).write(builder)
         record = builder.end()
-        offset = self._stream.tell()
-        self._stream.write(record)
+        with self._writing():
+            offset = self._stream.tell()
+            self._stream.write(record)
         self._metadata_indexes.append(MetadataIndex(offset=offset, length=len(record), name=name))
         self._metadata_count += 1
 
@@ -302,24 +350,28 @@ class McapBagWriter:
 
     def flush(self) -> None:
         """Write the open chunk and hand everything to the operating system."""
-        self._finish_chunk()
-        self._stream.flush()
+        with self._writing():
+            self._finish_chunk()
+            self._stream.flush()
 
     def close(self) -> None:
-        """Write the ``rosbag2`` record, the summary and the footer; close the file."""
+        """Write the ``rosbag2`` record, the summary and the footer; close the file.
+
+        OSError if that fails (the file then cut back to its last whole record and closed)."""
         if self._closed:
             return
-        self._closed = True
-        try:
-            serialized = yaml.safe_dump(self.bag_metadata(), sort_keys=False)
+        serialized = yaml.safe_dump(self.bag_metadata(), sort_keys=False)
+        with self._writing():
             self._finish_chunk()
             if self._chunk:  # schemas/channels of a chunk without messages: outside chunks
                 self._stream.write(bytes(self._chunk))
                 self._chunk = bytearray()
-            self.add_metadata("rosbag2", {"serialized_metadata": serialized})
+        self.add_metadata("rosbag2", {"serialized_metadata": serialized})
+        with self._writing():
             self._write_summary()
-        finally:
-            self._stream.close()
+            self._stream.flush()   # may be where the disk turns out full
+        self._closed = True
+        self._stream.close()
 
     def _write_summary(self) -> None:
         """DataEnd, the summary section (schemas, channels, statistics, chunk and metadata

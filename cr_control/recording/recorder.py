@@ -46,7 +46,10 @@ lockstep the loop waits for the recorder instead (:mod:`cr_control.nodes.lockste
 
 SIGINT or SIGTERM ends the session: the recorder keeps taking messages until the
 topics fall quiet (at most ``DRAIN_MAX_S``), writes all of them, then the summary and
-footer, and exits with status 0.
+footer, and exits with status 0. If the file cannot be written (the disk full, an I/O
+error), the recorder stops: one ERROR line names the file and the reason, the file keeps
+what was written before (cut back to its last whole record, without a summary: readers
+read it as a recording cut short) and the exit status is 1.
 
 ROS parameters (all read-only, read at start):
 
@@ -72,6 +75,7 @@ client :mod:`cr_control.recording.parameter_fetch`.
 from __future__ import annotations
 
 import bisect
+import errno
 import gc
 import signal
 import sys
@@ -398,6 +402,31 @@ def record(recorder: Recorder, executor: Any, stop: _StopRequest) -> None:
     recorder.take_all(flush=True)
 
 
+def record_to_file(recorder: Recorder, executor: Any, stop: _StopRequest) -> OSError | None:
+    """:func:`record`, then close the file; the OSError that stopped the writing (the disk
+    full, ...), if any: the file is then closed as far as it was written (McapBagWriter)."""
+    failure = None
+    try:
+        record(recorder, executor, stop)
+    except ExternalShutdownException:
+        pass
+    except OSError as exc:
+        failure = exc
+    try:
+        recorder.writer.close()
+    except OSError as exc:
+        failure = failure or exc
+    return failure
+
+
+def write_failure(path: Path, exc: OSError) -> str:
+    """The one line logged when the file cannot be written."""
+    full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    reason = "the disk is full" if full else f"cannot write ({exc.strerror or exc})"
+    return (f"stopped recording to {path}: {reason}; the file keeps what was written before, "
+            "without its summary (readers read it as a recording cut short)")
+
+
 def main(args: Iterable[str] | None = None) -> int:
     """Entry point of the ``recorder`` executable."""
     argv = list(args) if args is not None else sys.argv
@@ -420,16 +449,19 @@ def main(args: Iterable[str] | None = None) -> int:
     # rescan them while recording.
     gc.collect()
     gc.freeze()
+    failure = None
     try:
-        record(recorder, executor, stop)
-    except ExternalShutdownException:
-        pass
+        failure = record_to_file(recorder, executor, stop)
+        if failure is not None:
+            recorder.get_logger().error(write_failure(recorder.output, failure))
     finally:
-        recorder.writer.close()
+        recorder.writer.close()   # after an exception other than OSError
         count, path = recorder.writer.message_count, recorder.output
         executor.shutdown(timeout_sec=1.0)
         recorder.destroy_node()
         rclpy.try_shutdown()
+    if failure is not None:
+        return 1
     missed = sum(recorder.missed.values())
     detail = (f"; {missed} missed (gaps in the publishers' sequence numbers: "
               f"{', '.join(f'{t} {n}' for t, n in recorder.missed.items())})" if missed else "")
