@@ -34,7 +34,9 @@ a running task-space controller (:mod:`cr_control.tools.identify_ros`): its URDF
 
     cr_identify_tool --controller /adaptive_impedance --domain-id 12 --out tool.yaml
 
-Bad input: one line on stderr, exit code 2.
+Bad input: one line on stderr, exit code 2, before anything runs (a ``--node`` ROS would
+not accept as a node name, a ``--timeout`` not in (0, 3600] s, ...). The params file is
+written by ``yaml.safe_dump``: no text from the command line becomes YAML structure.
 """
 
 from __future__ import annotations
@@ -47,11 +49,13 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+import yaml
 
 from cr_control.core.parameters import ParameterError
 from cr_control.core.ros_env import domain_id_arg
 from cr_control.schemes.blocks.wrist_sensor import frame_rotation
 from cr_control.tools import robots
+from cr_control.tools.param_tool import full_node_name, timeout_seconds
 
 #: Tilt of the flange from the home pose (degrees) for the poses.
 POSE_TILT_DEG = 35.0
@@ -196,15 +200,16 @@ def identify_in_simulator(robot_name: str, settle: float, average: float,
 
 
 def params_file(node: str, frame: str, est: ToolEstimate, note: str) -> str:
-    """The estimate as a ROS params file for the controller node ``node``."""
-    fmt = lambda xs: "[" + ", ".join(f"{x:.6g}" for x in xs) + "]"  # noqa: E731
-    return (f"# cr_identify_tool: {note}\n"
+    """The estimate as a ROS params file for the controller node ``node`` (YAML by
+    ``yaml.safe_dump``: the node and frame are quoted as needed, the note one comment line)."""
+    short = lambda x: float(f"{x:.6g}")  # noqa: E731
+    values = {"sensor_frame": str(frame), "tool_mass": short(est.mass),
+              "tool_com": [short(x) for x in est.com], "ft_bias": [short(x) for x in est.bias]}
+    body = yaml.safe_dump({node: {"ros__parameters": values}}, default_flow_style=None,
+                          sort_keys=False, width=1 << 16)
+    return (f"# cr_identify_tool: {' '.join(note.split())}\n"
             f"# residual RMS: force {est.force_residual:.3g} N, torque {est.torque_residual:.3g} N m\n"
-            f"{node}:\n  ros__parameters:\n"
-            f"    sensor_frame: \"{frame}\"\n"
-            f"    tool_mass: {est.mass:.6g}\n"
-            f"    tool_com: {fmt(est.com)}\n"
-            f"    ft_bias: {fmt(est.bias)}\n")
+            f"{body}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -219,9 +224,14 @@ def main(argv: list[str] | None = None) -> int:
                    help="on a robot (or a session over ROS): the running task-space controller "
                         "that holds the poses, e.g. /adaptive_impedance")
     p.add_argument("--domain-id", type=domain_id_arg, help="ROS_DOMAIN_ID (with --controller)")
-    p.add_argument("--timeout", type=float, default=30.0,
-                   help="wait at most this for the controller and the topics (s)")
+    p.add_argument("--timeout", type=timeout_seconds, default=30.0,
+                   help="wait at most this for the controller and the topics (s, at most 3600)")
     args = p.parse_args(argv)
+    try:
+        full_node_name(args.node)
+    except ValueError as exc:
+        print(f"cr_identify_tool: --node: {exc}", file=sys.stderr)
+        return 2
     if args.controller:
         return _main_on_robot(args)
     try:
@@ -251,7 +261,6 @@ def main(argv: list[str] | None = None) -> int:
 def _main_on_robot(args: argparse.Namespace) -> int:
     """``--controller``: the poses through the ROS topics; the estimate written and printed."""
     from cr_control.core.ros_env import isolate_this_process
-    from cr_control.tools.param_tool import full_node_name
 
     try:
         node = full_node_name(args.controller)

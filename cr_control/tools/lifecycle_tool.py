@@ -31,9 +31,9 @@ from cr_control.core import topics
 from cr_control.core.ros_env import domain_id_arg, isolate_this_process, use_visitor_dds_profile
 from cr_control.tools.param_tool import (
     TIMEOUT_S,
-    _positive_seconds,
     call_service,
     full_node_name,
+    timeout_seconds,
     wait_for_service,
 )
 
@@ -148,7 +148,7 @@ def switch(life: Lifecycle, old: str, new: str, at_s: float, handover_s: float) 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cr_lifecycle", description=__doc__.split("\n\n")[0])
     p.add_argument("--domain-id", type=domain_id_arg, help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID)")
-    p.add_argument("--timeout", type=_positive_seconds, default=TIMEOUT_S, metavar="S",
+    p.add_argument("--timeout", type=timeout_seconds, default=TIMEOUT_S, metavar="S",
                    help=f"wait at most S seconds for a node and each answer (default {TIMEOUT_S:g})")
     sub = p.add_subparsers(dest="command", required=True)
     get = sub.add_parser("get", help="a node's lifecycle state")

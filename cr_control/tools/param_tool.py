@@ -5,9 +5,10 @@ any ROS 2 node. Runs on $ROS_DOMAIN_ID (the session runner prints the one it use
 localhost discovery unless set otherwise. The node is named as ``ros2 param`` takes it:
 ``/ns/name``, ``name`` (``/name``) or ``ns/name``; a name ROS would not accept is refused
 before anything starts. Values are YAML as ROS params files read it (``1e12`` is a
-number). A node that does not answer within ``--timeout`` seconds (default 3) counts as
-not found. Exit status: 0 done, 1 refused by the node, 2 usage or connection error
-(invalid node name, unknown parameter, unreadable value, node not found or not answering).
+number; no aliases). A node that does not answer within ``--timeout`` seconds (default 3,
+at most 3600) counts as not found. Exit status: 0 done, 1 refused by the node, 2 usage or
+connection error (invalid node name, unknown parameter, unreadable value, node not found
+or not answering).
 
     cr_param list /adaptive_impedance
     cr_param get /adaptive_impedance Q_c
@@ -17,16 +18,20 @@ not found. Exit status: 0 done, 1 refused by the node, 2 usage or connection err
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
 import yaml
 
 from cr_control.core import ros_yaml
+from cr_control.core.parameters import _shown as shown  # a value in a message, cut to 80 chars
 from cr_control.core.ros_env import domain_id_arg, isolate_this_process, use_visitor_dds_profile
 
 #: Default of ``--timeout``: how long to wait for the node to appear and for each answer (s).
 TIMEOUT_S = 3.0
+#: Longest ``--timeout`` (s) of the tools that wait for a node: more is a typo, not a wait.
+MAX_TIMEOUT_S = 3600.0
 
 
 def full_node_name(text: str) -> str:
@@ -63,14 +68,17 @@ def full_node_name(text: str) -> str:
     raise ValueError(f"invalid node name {text!r}: {reason}")
 
 
-def _positive_seconds(text: str) -> float:
-    """argparse ``type`` of ``--timeout``: a finite number of seconds > 0."""
+def timeout_seconds(text: str) -> float:
+    """argparse ``type`` of every ``--timeout`` (cr_param, cr_lifecycle, cr_identify_tool): a
+    number of seconds in (0, MAX_TIMEOUT_S]; NaN, infinite, zero, negative or larger is
+    refused (a NaN deadline is never reached: the tool would wait for ever)."""
     try:
         value = float(text)
     except ValueError:
-        value = float("nan")
-    if not 0.0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, not {text!r}")
+        value = math.nan
+    if not 0.0 < value <= MAX_TIMEOUT_S:
+        raise argparse.ArgumentTypeError(
+            f"must be a number of seconds > 0 and <= {MAX_TIMEOUT_S:g}, not {shown(text)}")
     return value
 
 
@@ -106,7 +114,8 @@ def _parse_value(text: str):
     try:
         return ros_yaml.load(text)
     except yaml.YAMLError as exc:
-        raise ValueError(f"value {text!r} is not valid YAML: {ros_yaml.describe_error(exc)}") from None
+        raise ValueError(f"value {shown(text)} is not valid YAML: "
+                         f"{ros_yaml.describe_error(exc)}") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -147,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             msg = Parameter(args.name, value=value).to_parameter_msg()
         except TypeError:
-            raise ValueError(f"{args.value!r} cannot be a ROS parameter value") from None
+            raise ValueError(f"{shown(args.value)} cannot be a ROS parameter value") from None
         result = call(SetParameters, "set_parameters", SetParameters.Request(parameters=[msg])).results[0]
         if result.successful:
             print(f"set {args.name} = {value}")
@@ -172,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         # (a command's own defaults are suppressed: they would hide the main parser's).
         parser.add_argument("--domain-id", type=domain_id_arg, default=default(None),
                             help="ROS_DOMAIN_ID of the session (default: $ROS_DOMAIN_ID)")
-        parser.add_argument("--timeout", type=_positive_seconds, default=default(TIMEOUT_S),
+        parser.add_argument("--timeout", type=timeout_seconds, default=default(TIMEOUT_S),
                             metavar="S", help="wait at most S seconds for the node and for each "
                                               f"answer (default {TIMEOUT_S:g})")
 
