@@ -1,4 +1,5 @@
-# Two commands on a fresh machine (README): `make demo` and `make test`.
+# Two commands on a fresh machine (README): `make demo` and `make test`; `make test-fast` while
+# editing.
 # Both create the virtual environment from PyPI (pinned versions) if it is not there.
 
 PYTHON ?= python3
@@ -13,7 +14,7 @@ MODE ?= realtime
 OUT ?= sessions
 DEMO_ARGS ?=
 
-.PHONY: demo test lint benchmark fuzz venv clean
+.PHONY: demo test test-fast lint benchmark fuzz venv clean
 
 venv: $(STAMP)
 
@@ -40,6 +41,12 @@ test: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m cr_control.tools.warm_up
 	$(BIN)/python -m pytest -q --durations=30 test
+
+## The same without the tests that start ROS or Ray (marked `ros`, test/conftest.py): under 2 min.
+test-fast: $(STAMP) $(ROBOTS_STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/python -m cr_control.tools.warm_up
+	$(BIN)/python -m pytest -q -m "not ros" test
 
 ## Real-time figures and issue 6's targets (PASS/FAIL): sessions across processes, composed and
 ## with the recorder vs a bare rclpy echo pair, the recorder's CPU per message, lockstep and

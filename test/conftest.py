@@ -2,12 +2,22 @@
 
 Domain ids come from :func:`ros_probe.next_domain`, which holds them machine-wide
 (cr_control.core.ros_env locks) for the test, or the module for module-scoped fixtures.
+
+Two tiers. A test that starts ROS or a Ray cluster is marked ``ros``: it calls rclpy.init
+(also through ros_probe.RosProbe, plant_harness's ``make_node`` or a node made in the
+test), starts a process of our nodes, of cr_session or of a tool that talks to nodes
+(cr_param, cr_lifecycle, cr_fuzz, cr_identify_tool, the benchmark), or starts Ray (the
+sweep engine, cr_reproduce). Mark the test with ``@pytest.mark.ros``, or the whole module
+with ``pytestmark = pytest.mark.ros`` when every test in it does. ``make test-fast`` runs
+the rest (``pytest -m "not ros"``, under 2 minutes); ``make test`` and CI run both. An
+unmarked test that calls rclpy.init fails at once, saying so.
 """
 
 import os
 
 import pytest
 from plant_harness import make_node  # noqa: F401 - a fixture for every test module
+from rclpy.context import Context
 from ros_probe import domains_taken, next_domain, release_domains
 
 from cr_control.core.ros_env import isolated_env, use_node_dds_profile
@@ -22,6 +32,32 @@ use_node_dds_profile()   # nodes made in this process run as they do in their ex
 # cr_control/nodes/discovery_settle.py (4 s a start, minutes over the suite) is tested in
 # test_discovery_settle.py.
 os.environ.setdefault(SETTLE_VARIABLE, "0")
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "ros: starts ROS or a Ray cluster (rclpy.init, a node, cr_session, a ROS tool, "
+                   "Ray); make test-fast leaves these out (-m 'not ros')")
+
+
+#: Whether the running test may start ROS (its ``ros`` mark), set before its fixtures.
+_ros_allowed = True
+_context_init = Context.init
+
+
+def _init_if_marked(self, *args, **kwargs):
+    if not _ros_allowed:
+        raise RuntimeError("this test starts ROS (rclpy.init) but is not marked: add "
+                           "@pytest.mark.ros (see test/conftest.py)")
+    return _context_init(self, *args, **kwargs)
+
+
+Context.init = _init_if_marked   # rclpy.init, RosProbe and make_node all come through here
+
+
+def pytest_runtest_setup(item):
+    global _ros_allowed
+    _ros_allowed = item.get_closest_marker("ros") is not None
 
 
 @pytest.fixture(autouse=True, scope="module")

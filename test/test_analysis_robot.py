@@ -73,6 +73,7 @@ def expected_metrics(rows: np.ndarray) -> dict[str, float]:
     return out
 
 
+@pytest.mark.ros
 def test_metrics_match_the_offline_run(session):
     rows = np.rint(session.status["stamp"] * 1e3).astype(int)
     assert len(rows) > 0.9 * DURATION * 1000 and robot.is_robot(session.status)
@@ -138,6 +139,7 @@ def test_contact_lost_intervals():
     assert robot.contact_lost_intervals(t[:0], f[:0]) == []
 
 
+@pytest.mark.ros
 def test_plots_of_a_robot_session(session, tmp_path):
     written = analyze.plot_session(session, tmp_path)
     names = {p.name for p in written}
@@ -146,6 +148,7 @@ def test_plots_of_a_robot_session(session, tmp_path):
         assert png_ok(path) and path.stat().st_size > 20_000, path.name
 
 
+@pytest.mark.ros
 def test_cr_analyze_prints_the_robot_metrics(recording, session, capsys):
     assert analyze.main([str(recording), "--no-plots"]) == 0
     text = capsys.readouterr().out
@@ -159,6 +162,7 @@ def test_cr_analyze_prints_the_robot_metrics(recording, session, capsys):
         assert values[name] == pytest.approx(expected[name], rel=1e-12), name
 
 
+@pytest.mark.ros
 def test_cr_analyze_side_by_side_with_a_thesis_session(recording, tmp_path, capsys):
     thesis = tmp_path / "thesis.mcap"
     write_session(thesis)

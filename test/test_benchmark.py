@@ -127,6 +127,7 @@ def test_json_safe_and_domain_ids():
                    FIRST_DOMAIN + 1]
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("shape", [(), bm.LAYOUTS[-1].echo_args], ids=["2 joints", "panda"])
 def test_echo_pair_one_process_produces_cycles(ros_env, shape):
     proc = subprocess.run([sys.executable, "-m", "cr_control.tools.echo_pair", "both", "--duration", "1",
@@ -276,6 +277,7 @@ def test_median_of_repeats_keeps_each_repeat_and_errors():
     assert "-3.00 pp" in bm.format_repeats([("session processes", merged)])
 
 
+@pytest.mark.ros
 def test_reference_run_measures_the_issues_own_code(tmp_path):
     """The code issue 6 measured comes out of this repository's history and runs its own
     benchmark (short runs here): the four figures the cost targets are carried by."""

@@ -345,6 +345,7 @@ def test_nn_controller_uses_no_dynamics_model():
 
 
 # -- over ROS -------------------------------------------------------------------------
+@pytest.mark.ros
 @pytest.mark.parametrize("scheme,fields", [
     ("moving_object_adaptive", ("e1_1", "e1_2", "lambda", "tau_3", "P_hat_1", "P_hat_7")),
     ("moving_object_nn", ("e1_1", "lambda", "tau_1", "tau_3", "M1_hat_norm", "G1_hat_norm")),

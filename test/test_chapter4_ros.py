@@ -27,6 +27,8 @@ from cr_control.core import topics
 from cr_control.core.paths import config_file
 from cr_control.nodes.qos import READY_QOS
 
+pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)
+
 QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 PLANT = [sys.executable, "-m", "cr_sim.plant_node"]
 CONTROLLER = [sys.executable, "-m", "cr_control.nodes.controller_node"]

@@ -270,6 +270,7 @@ def test_chapter5_figures_and_table(thesis, tmp_path):
 
 
 # -- lockstep over ROS -------------------------------------------------------------------
+@pytest.mark.ros
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_lockstep_over_ros_reproduces_the_offline_loop(scheme, tmp_path):
     """Plant, controller and recorder over ROS in lockstep for 3 s (through the disturbance):

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)
+
 DURATION = 2.0
 STEPS = int(DURATION * 1000)
 

@@ -57,6 +57,7 @@ def write(path: Path, text: str) -> Path:
     return path
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("out,reason", [
     ("file", "is not a directory"),               # NotADirectoryError before
     ("file/below", "is not a directory"),
@@ -70,6 +71,7 @@ def test_session_out_unusable(tmp_path, ros_env, out, reason):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]   # nothing created
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("text,reason", [
     ("a: [1, 2\n", "not valid YAML: expected ',' or ']'"),          # ParserError before
     ("- 1\n- 2\n", "not a ROS params file"),                        # AttributeError before
@@ -85,6 +87,7 @@ def test_session_params_file_malformed(tmp_path, ros_env, text, reason):
     assert not (tmp_path / "out").exists()                           # no empty session dir
 
 
+@pytest.mark.ros
 def test_session_params_file_missing(tmp_path, ros_env):
     line = error_line(session(tmp_path, ros_env, "--out", str(tmp_path / "out"),
                               "--params-file", str(tmp_path / "nope.yaml")))
@@ -92,6 +95,7 @@ def test_session_params_file_missing(tmp_path, ros_env):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("node,name", [(SCHEME, "Q_cc"), ("plant", "stifness"), ("recorder", "ouput")])
 def test_session_refuses_unknown_parameters_by_name(tmp_path, ros_env, node, name):
     params = write(tmp_path / "params.yaml", f"{node}:\n  ros__parameters:\n    {name}: 1.0\n")
@@ -101,6 +105,7 @@ def test_session_refuses_unknown_parameters_by_name(tmp_path, ros_env, node, nam
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.ros
 def test_session_refuses_unknown_override(tmp_path, ros_env):
     line = error_line(session(tmp_path, ros_env, "--out", str(tmp_path / "out"),
                               "-p", f"{SCHEME}.Q_cc=[1, 1]"))
@@ -108,6 +113,7 @@ def test_session_refuses_unknown_override(tmp_path, ros_env):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("override,reason", [
     (f"{SCHEME}.Q_c=[1.0, -1.0]", f"{SCHEME}: Q_c must be positive definite"),
     (f"{SCHEME}.Q_c=[1e308, 1e308]", f"{SCHEME}: Q_c is out of bounds (each |x| <= 1e4)"),
@@ -119,6 +125,7 @@ def test_session_refuses_bad_values_before_starting(tmp_path, ros_env, override,
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.ros
 def test_session_knows_every_recorder_parameter(tmp_path):
     """The session's list of recorder parameters is what the recorder node declares."""
     from cr_control.recording.recorder import Recorder
@@ -143,18 +150,21 @@ def controller(params: Path, env: dict[str, str]) -> subprocess.CompletedProcess
                env=env)
 
 
+@pytest.mark.ros
 def test_node_refuses_misspelt_parameter(tmp_path, ros_env):
     params = write(tmp_path / "p.yaml", f"{SCHEME}:\n  ros__parameters:\n    Q_cc: [1.0, 1.0]\n")
     line = error_line(controller(params, ros_env))
     assert line == f"{SCHEME}: refused to start: unknown parameter for {SCHEME}: Q_cc (did you mean Q_c?)"
 
 
+@pytest.mark.ros
 def test_plant_refuses_misspelt_parameter(tmp_path, ros_env):
     params = write(tmp_path / "p.yaml", "plant:\n  ros__parameters:\n    stifness: 300.0\n")
     line = error_line(run("cr_sim.plant_node", "--ros-args", "--params-file", str(params), env=ros_env))
     assert line.startswith("plant: refused to start: unknown parameter for plant: stifness")
 
 
+@pytest.mark.ros
 def test_node_refuses_wrong_type_with_the_name(tmp_path, ros_env):
     params = write(tmp_path / "p.yaml", f"{SCHEME}:\n  ros__parameters:\n    Q_c: fast\n")
     line = error_line(controller(params, ros_env))     # InvalidParameterTypeException before
@@ -176,6 +186,7 @@ def node_with(probe: RosProbe, **overrides) -> Node:
         Parameter(name, value=value) for name, value in overrides.items()])
 
 
+@pytest.mark.ros
 def test_integers_for_doubles_are_taken(probe):
     node = node_with(probe, max_effort=50, Q_c=[7, 7])
     values = declare(node, SPECS)
@@ -183,11 +194,13 @@ def test_integers_for_doubles_are_taken(probe):
     assert node.get_parameter("max_effort").type_ == Parameter.Type.DOUBLE
 
 
+@pytest.mark.ros
 def test_wrong_type_is_a_parameter_error(probe):
     with pytest.raises(ParameterError, match=r"parameter max_effort must be a double, got a bool"):
         declare(node_with(probe, max_effort=True), SPECS)
 
 
+@pytest.mark.ros
 def test_undeclared_overrides_are_refused_after_declaring(probe):
     node = node_with(probe, Q_cc=[1.0, 1.0], use_sim_time=False)
     declare(node, SPECS)
@@ -226,6 +239,7 @@ def cr_param(probe: RosProbe, *args: str) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
+@pytest.mark.ros
 def test_cr_param_unknown_parameter(served):
     probe, _, _ = served
     for command in (("set", "/crtest", "Q_cc", "[1.0, 1.0]"), ("get", "/crtest", "Q_cc")):
@@ -234,6 +248,7 @@ def test_cr_param_unknown_parameter(served):
         assert error_line(proc) == "cr_param: unknown parameter for /crtest: Q_cc (did you mean Q_c?)"
 
 
+@pytest.mark.ros
 def test_cr_param_reads_exponent_floats(served):
     probe, node, applied = served
     proc = cr_param(probe, "set", "/crtest", "Q_c", "[2e3, 2e3]")  # strings before
@@ -242,6 +257,7 @@ def test_cr_param_reads_exponent_floats(served):
     assert list(applied["Q_c"].diagonal()) == [2e3, 2e3]
 
 
+@pytest.mark.ros
 def test_cr_param_unreadable_value(served):
     proc = cr_param(served[0], "set", "/crtest", "Q_c", "[1.0, 2.0")
     assert proc.returncode == 2 and "not valid YAML" in error_line(proc)
@@ -252,6 +268,7 @@ def double_array(name: str, values: list[float]) -> ParameterMsg:
         type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=values))
 
 
+@pytest.mark.ros
 def test_set_parameters_is_per_parameter_atomically_is_all_or_nothing(served):
     """ROS semantics, as police_changes documents them: SetParameters answers each
     parameter on its own (the good half of a mixed request is applied); with
@@ -270,6 +287,7 @@ def test_set_parameters_is_per_parameter_atomically_is_all_or_nothing(served):
     assert list(node.get_parameter("Q_a").value) != [1.0, -1.0]
 
 
+@pytest.mark.ros
 def test_recorder_refuses_misspelt_parameter(tmp_path, ros_env):
     """The recorder, started by hand with a params file naming a parameter it does not have."""
     params = tmp_path / "recorder.yaml"

@@ -77,6 +77,7 @@ INVALID_ON_THE_COMMAND_LINE = ["/bad name", "", "///..", "/1node", "/plant/", "/
 COMMANDS = [("get", "{}", "Q_c"), ("set", "{}", "Q_c", "[1.0, 1.0]"), ("list", "{}")]
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("name,command", [(name, COMMANDS[i % len(COMMANDS)])
                                           for i, name in enumerate(INVALID_ON_THE_COMMAND_LINE)])
 def test_cr_param_invalid_node_name(ros_env, name, command):
@@ -93,6 +94,7 @@ def test_cr_param_invalid_node_name(ros_env, name, command):
 STARTUP_ALLOWANCE_S = 6.0
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("args,timeout", [
     (("get", "/nobody", "Q_c"), param_tool.TIMEOUT_S),                   # default: 3 s
     (("--timeout", "1", "set", "ns/nobody", "Q_c", "2.0"), 1.0),
@@ -110,6 +112,7 @@ def test_cr_param_absent_node_within_timeout(ros_env, args, timeout):
     assert timeout <= elapsed < timeout + STARTUP_ALLOWANCE_S
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "soon"])
 def test_cr_param_timeout_must_be_positive(ros_env, value):
     proc = cr_param(ros_env, "--timeout", value, "get", "/plant", "resume")
@@ -129,6 +132,7 @@ def tree(path: Path) -> list[str]:
     return sorted(str(p.relative_to(path)) for p in path.rglob("*"))
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("name,why", [
     ("../../x", "path separator"), ("../x", "path separator"), ("a/b", "path separator"),
     ("x/", "path separator"), ("/tmp/cr_session_outside", "path separator"),
@@ -178,6 +182,7 @@ def test_nonempty_or_unreadable_params_file_is_left_to_its_reader(tmp_path, text
     assert not ros_yaml.empty_params_file(str(tmp_path / "missing.yaml"))
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("text", EMPTY_FILES.values(), ids=EMPTY_FILES.keys())
 def test_session_refuses_empty_params_file(tmp_path, ros_env, text):
     params = tmp_path / "params.yaml"
@@ -192,6 +197,7 @@ NODES = {"plant": ["cr_sim.plant_node"], SCHEME: ["cr_control.nodes.controller_n
          "container": ["cr_control.nodes.container", SCHEME], "recorder": ["cr_control.recording.recorder"]}
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("node,text", [("plant", t) for t in EMPTY_FILES.values()]
                          + [(SCHEME, ""), (SCHEME, "{}\n"), ("container", "# only a comment\n"),
                             ("recorder", "null\n")],
@@ -216,6 +222,7 @@ def test_params_files_are_read_from_ros_args_only():
 
 
 # -- cr_param: the visitor profile ---------------------------------------------------------
+@pytest.mark.ros
 def test_cr_param_on_its_udp_only_profile_reaches_a_node_on_shared_memory(ros_env):
     """Started as a user starts them (no Fast DDS profile chosen), the plant takes the node
     profile (shared memory and UDP) and cr_param the visitor profile (UDP only, so the loop

@@ -188,6 +188,7 @@ def _query(cr_param: Path, env: dict[str, str], node: str, name: str, procs: dic
         time.sleep(0.5)
 
 
+@pytest.mark.ros
 def test_installed_nodes_start_and_answer_parameter_queries(workspace, ros_env, tmp_path):
     env = _installed_env(workspace, ros_env)
     prefix = _prefix(workspace)

@@ -213,6 +213,7 @@ def test_monitor_never_triggers_in_the_wiping_task():
         assert r.column("oscillation_rms").max() < 0.5 * 2.0, (robot, clearance)
 
 
+@pytest.mark.ros
 def test_lockstep_session_approaches_like_the_offline_loop(tmp_path):
     """cr_session --robot panda -p plant.start_clearance=0.05 in lockstep: contact at the
     offline loop's cycle, the same forces."""

@@ -257,6 +257,7 @@ def status(node) -> dict[str, float]:
 GID_A, GID_B = bytes(range(16)), bytes(range(16, 32))
 
 
+@pytest.mark.ros
 def test_a_node_whose_law_fails_stops_publishing_commands(node):
     node._on_joint_state(state(0), GID_A)
     poison(node.controller)
@@ -268,6 +269,7 @@ def test_a_node_whose_law_fails_stops_publishing_commands(node):
     assert len(node.published) == 1 + MAX_BAD
 
 
+@pytest.mark.ros
 def test_an_oversized_joint_state_is_dropped_unparsed(node, monkeypatch):
     """One 10 MB JointState (640 000 names, as in the issue: the reader spent 1.8 s on it):
     dropped on its length, never parsed; as the sender-aware subscription hands it over
@@ -295,6 +297,7 @@ def test_an_oversized_joint_state_is_dropped_unparsed(node, monkeypatch):
     assert len(node.published) == 2 and status(node)["inputs_oversized"] == 4
 
 
+@pytest.mark.ros
 def test_states_from_a_second_publisher_are_ignored_until_the_first_falls_silent(node, monkeypatch):
     warned = []
     monkeypatch.setattr(node.get_logger(), "warn", lambda msg, **_: warned.append(msg))
@@ -320,6 +323,7 @@ def test_states_from_a_second_publisher_are_ignored_until_the_first_falls_silent
     assert status(node)["states_foreign"] == 100 and status(node)["source_handovers"] == 1
 
 
+@pytest.mark.ros
 def test_a_node_behind_its_plant_answers_only_the_newest_state(node):
     """Real time: states taken in one wake-up with a newer one of the same sender behind
     them are skipped (the plant holds a command for its latest state only); the newest is
@@ -336,6 +340,7 @@ def test_a_node_behind_its_plant_answers_only_the_newest_state(node):
     assert len(node.published) == 2 and command.header.stamp.nanosec == 4_000_000
 
 
+@pytest.mark.ros
 def test_an_inactive_node_reads_one_state_and_answers_the_newest_at_activation(node, monkeypatch):
     """Inactive (a live switch's second scheme): the first state is read (the law's time
     origin), the later ones of that source are only kept, not deserialised; no command
@@ -356,6 +361,7 @@ def test_an_inactive_node_reads_one_state_and_answers_the_newest_at_activation(n
     assert len(reads) == 3 and len(node.published) == 2
 
 
+@pytest.mark.ros
 def test_a_wrench_beyond_max_sensor_force_is_a_sensor_fault(node, monkeypatch):
     warned = []
     monkeypatch.setattr(node.get_logger(), "warn", lambda msg, **_: warned.append(msg))

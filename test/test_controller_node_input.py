@@ -33,6 +33,7 @@ def fields(names, position, velocity) -> JointStateFields:
     return JointStateFields(1, 0, tuple(names), tuple(position), tuple(velocity), ())
 
 
+@pytest.mark.ros
 def test_joint_arrays_in_our_order_or_empty_when_unusable(node):
     q, v = node._joint_arrays(fields(["joint2", "joint1"], [2.0, 1.0], [20.0, 10.0]))
     np.testing.assert_array_equal(q, [1.0, 2.0])
@@ -45,6 +46,7 @@ def test_joint_arrays_in_our_order_or_empty_when_unusable(node):
         assert q.size == 0 and v.size == 0
 
 
+@pytest.mark.ros
 def test_unreadable_bytes_are_ignored_and_the_next_state_answered(node):
     node._on_joint_state(b"\x00\x01\x00\x00 not a joint state")
     node._on_joint_state(b"")
@@ -93,6 +95,7 @@ def lockstep_node():
     rclpy.shutdown(context=context)
 
 
+@pytest.mark.ros
 def test_a_lockstep_state_before_the_plants_interface_is_answered_once_it_comes(lockstep_node):
     """The plant's first state can come before its latched command interface: the lockstep
     plant waits for that state's answer, so the controller answers it when the interface

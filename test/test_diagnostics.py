@@ -146,6 +146,7 @@ def test_nearest_rank():
     assert all(math.isnan(x) for x in nearest_rank([], 50))
 
 
+@pytest.mark.ros
 def test_plant_node_reports_a_safe_stop_at_once_and_clears_it_on_resume(ros_env, make_node):
     """The plant node's hooks: each timing report is judged; a safe stop publishes ERROR at
     once (not at the next report); after resume the next report is no longer ERROR."""
@@ -164,6 +165,7 @@ def test_plant_node_reports_a_safe_stop_at_once_and_clears_it_on_resume(ros_env,
 
 
 # -- ROS: a real-time session ------------------------------------------------------------
+@pytest.mark.ros
 def test_session_ok_then_the_plant_errors_within_2_s_of_a_killed_controller(ros_env):
     """Plant and adaptive_impedance in real time: both report, OK (or WARN where a loaded
     machine's loop lags: the counts and messages are printed), never ERROR; after SIGKILL

@@ -51,6 +51,7 @@ def _subscribed_after(env: dict[str, str], *ros_args: str) -> float:
         stop_node(proc)
 
 
+@pytest.mark.ros
 def test_a_realtime_controller_subscribes_to_the_states_only_after_the_wait():
     env = isolated_env(next_domain())
     env[SETTLE_VARIABLE] = str(SETTLE)
@@ -60,6 +61,7 @@ def test_a_realtime_controller_subscribes_to_the_states_only_after_the_wait():
     assert SETTLE - 1.0 < waited < SETTLE + 5.0
 
 
+@pytest.mark.ros
 def test_a_lockstep_controller_subscribes_at_once():
     env = isolated_env(next_domain())
     env[SETTLE_VARIABLE] = "30"
@@ -73,6 +75,7 @@ def _log_stamp(text: str, pattern: str) -> float:
     return float(match.group(1))
 
 
+@pytest.mark.ros
 def test_the_plant_starts_only_once_the_controller_listens(tmp_path, monkeypatch):
     """A real-time session: the recorder subscribes to the states at once (the plant's
     other condition), yet the plant starts no earlier than the controller's subscription,

@@ -108,6 +108,7 @@ def test_consecutive_domains_skip_a_run_broken_by_a_holder():
 
 # -- two sessions ------------------------------------------------------------------------
 
+@pytest.mark.ros
 def test_second_session_on_the_same_domain_refuses(tmp_path):
     """Session A takes a free domain; B asked for it (option or environment) refuses to
     start with one line and creates nothing; A is not disturbed."""

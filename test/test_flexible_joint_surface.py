@@ -235,19 +235,22 @@ def test_registry_joints_limits_and_brakes():
     assert np.all(np.isinf(limits.lower)) and np.all(limits.lower < 0)
     m = p.measurement()
     assert m.position.shape == m.velocity.shape == m.effort.shape == (4,) and m.force.shape == (3,)
-    # the brakes: spring torque compensated, motors damped and held where braking began
+    # the brakes: spring torque compensated, motors braked at w_b scaled by their inertia
+    # J_m, toward where they come to rest (q_m + q_m'/w_b when braking began), held there
     tau0 = p.held
     p.step(tau0 + np.array([1.0, -1.0]), DT)
     p.begin_safe_stop()
     x = p.state
+    w, J_m = p.brake_frequency, p.motor_inertia
+    stop = x[4:6] + x[6:] / w
     for _ in range(3):
         p.step(p.safe_stop_command(), DT)
     x1 = p.state
-    expect = (p.stiffness * (x1[4:6] - x1[:2]) - p.brake_damping * x1[6:]
-              - p.brake_stiffness * (x1[4:6] - x[4:6]))
+    expect = (p.stiffness * (x1[4:6] - x1[:2])
+              - J_m * (2.0 * w * x1[6:] + w * w * (x1[4:6] - stop)))
     assert p.safe_stop_command().shape == (2,)
     assert np.allclose(p.safe_stop_command(), expect, atol=1e-12)
-    assert np.array_equal(p._brake_hold, x[4:6])
+    assert np.allclose(p._brake_hold, stop, rtol=0.0, atol=1e-15)
     # noise reaches the measurement, not the state
     noisy = plant({"position_noise_std": 1e-3, "force_noise_std": 0.1})
     assert not np.array_equal(noisy.measurement().position, noisy.state[[0, 1, 4, 5]])

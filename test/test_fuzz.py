@@ -64,6 +64,7 @@ def test_every_row_of_the_issue_is_a_case():
     assert fuzz.CASE_NAMES[0] == "baseline"
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("args, message", [
     (["--cases", "nope"], "unknown case(s) nope"),
     (["--duration", "1"], "--duration must be"),

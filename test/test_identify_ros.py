@@ -20,7 +20,7 @@ from robot_data import needs_erd
 from cr_control.core import ros_yaml
 from cr_control.tools import robots
 
-pytestmark = needs_erd
+pytestmark = [pytest.mark.ros, needs_erd]
 
 
 def test_identification_through_the_topics(tmp_path, ros_env):

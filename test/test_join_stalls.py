@@ -117,6 +117,7 @@ def run_session(ros_env, probe) -> tuple[list, int, int, str]:
     return timing, first_join, joined_until, plant_out
 
 
+@pytest.mark.ros
 def test_nodes_joining_and_leaving_never_stall_the_loop(ros_env, probe):
     """See the module docstring. A session that safe-stopped before the first node joined
     (a fresh-clone CI run, 2026-11-26: a 754-tick run without a command in the baseline

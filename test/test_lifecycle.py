@@ -78,6 +78,7 @@ def cr_lifecycle(env, *args: str) -> subprocess.CompletedProcess:
                           timeout=120)
 
 
+@pytest.mark.ros
 def test_autostart_false_waits_until_activated(ros_env):
     """The plant (lockstep, 0.5 s) only runs once the controller is active."""
     controller = start_node([sys.executable, "-m", "cr_control.nodes.controller_node",
@@ -107,6 +108,7 @@ def test_autostart_false_waits_until_activated(ros_env):
         stop_node(controller)
 
 
+@pytest.mark.ros
 def test_cr_lifecycle_bad_input(ros_env):
     bad = cr_lifecycle(ros_env, "get", "/1node")
     assert bad.returncode == 2 and bad.stderr.startswith("cr_lifecycle: invalid node name")
@@ -152,6 +154,7 @@ def _check_switch(result, session, at: float) -> None:
     assert force[after].min() > 3.0
 
 
+@pytest.mark.ros
 def test_live_switch_lockstep(tmp_path):
     result, session = switch_session(tmp_path, "lockstep", 2.0, 1.0)
     _check_switch(result, session, 1.0)
@@ -169,6 +172,7 @@ def test_live_switch_lockstep(tmp_path):
     assert len(session.joint_commands.time) == len(session.joint_states.time) == 2000
 
 
+@pytest.mark.ros
 def test_live_switch_realtime(tmp_path):
     result, session = switch_session(tmp_path, "realtime", 4.0, 2.0)
     _check_switch(result, session, 2.0)

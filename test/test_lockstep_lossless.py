@@ -26,6 +26,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 from rclpy.node import Node
 from ros_probe import RosProbe, next_domain, start_node, stop_node
 from sensor_msgs.msg import JointState
@@ -67,6 +68,7 @@ def _offered_reliability(mcap) -> dict[str, list[str]]:
                           or []] for c in channels}
 
 
+@pytest.mark.ros
 def test_a_stopped_recorder_loses_nothing_in_lockstep(tmp_path):
     duration = 6.0
     cfg = SessionConfig(scheme="adaptive_impedance", duration=duration, mode="lockstep",
@@ -104,6 +106,7 @@ def test_a_stopped_recorder_loses_nothing_in_lockstep(tmp_path):
         assert "acknowledged nothing" not in (session.logs / f"{node}.log").read_text()
 
 
+@pytest.mark.ros
 def test_a_reader_that_takes_nothing_holds_the_plant_back(ros_env):
     states = 8000
     probe = RosProbe(int(ros_env["ROS_DOMAIN_ID"]))

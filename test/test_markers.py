@@ -116,6 +116,7 @@ def test_scene_of_the_panda_on_its_table():
     assert abs(tip[2] - top) < 0.01 and np.allclose(table.centre[:2], tip[:2])
 
 
+@pytest.mark.ros
 def test_markers_published_at_30_hz_in_a_lockstep_session_and_recorded(tmp_path):
     """adaptive_impedance on the compliant plane, lockstep: /plant/markers and
     /adaptive_impedance/markers are in the MCAP at ~30 Hz of simulated time (stamps), with
@@ -181,6 +182,7 @@ def test_foxglove_layout_plots_the_fields_it_names():
     assert {p["value"].split(".")[0] for p in paths} == {topics.WRENCH, "/adaptive_impedance/status"}
 
 
+@pytest.mark.ros
 def test_plant_markers_serialize_every_layout_before_the_loop(ros_env):
     """PlantMarkers.warm_up serializes every layout tick sends (surface or not, force arrow
     or its deletion): driving the compliant plane into and out of contact for more than

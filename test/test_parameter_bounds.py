@@ -185,6 +185,7 @@ def value_of(node: Node, name: str) -> np.ndarray:
     return np.asarray(node.get_parameter(name).value)
 
 
+@pytest.mark.ros
 def test_the_bound_is_in_the_declared_description_and_the_params_file(served):
     _, node, _ = served
     assert node.describe_parameter("Q_c").description.endswith(
@@ -192,6 +193,7 @@ def test_the_bound_is_in_the_declared_description_and_the_params_file(served):
     assert "(each |x| <= 1e4)\n    Q_c: [5.0, 5.0]\n" in (config_dir() / f"{SCHEME}.yaml").read_text()
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("service", sorted(SERVICES))
 def test_fuzzed_values_are_refused_and_the_old_values_stay(served, service):
     probe, node, applied = served
@@ -204,6 +206,7 @@ def test_fuzzed_values_are_refused_and_the_old_values_stay(served, service):
     assert not applied
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("service", sorted(SERVICES))
 def test_a_huge_value_is_refused_before_it_is_read(served, service, monkeypatch):
     """A 10^6-element Q_c (8 MB) is refused from the request's size by the parameter gate,
@@ -247,6 +250,7 @@ def test_a_huge_value_is_refused_before_it_is_read(served, service, monkeypatch)
           f"{1e3 * round_trip:.1f} ms; node.set_parameters {1e3 * in_process:.3f} ms")
 
 
+@pytest.mark.ros
 def test_refusals_are_rate_limited_per_parameter(served, capfd):
     """200 refused requests (oversized ones refused from the request, non-definite ones by the
     on-set callback) give one WARN line per REFUSED_WARN_EVERY_S, not 200."""
@@ -267,6 +271,7 @@ def test_refusals_are_rate_limited_per_parameter(served, capfd):
     assert 1 <= len(lines) <= 1 + int(elapsed / REFUSED_WARN_EVERY_S)
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("service", sorted(SERVICES))
 @pytest.mark.parametrize("size", [2, HUGE])
 def test_an_unknown_parameter_is_refused_by_name(served, service, size):
@@ -277,6 +282,7 @@ def test_an_unknown_parameter_is_refused_by_name(served, service, size):
     assert not applied
 
 
+@pytest.mark.ros
 def test_a_mixed_request_applies_the_known_parameter(served):
     probe, node, applied = served
     results = set_remote(probe, "set_parameters", message("Q_c", [50.0, 50.0]),

@@ -140,6 +140,7 @@ def _call(client, srv_type, name: str, request, timeout: float = 10.0):
         client_node.destroy_client(service)
 
 
+@pytest.mark.ros
 def test_the_gate_serves_and_refuses_without_the_executor_taking(gated_node):
     node, gate, client, callback_threads, executor_thread = gated_node
     assert {s.srv_name for s in gate.services} == {
@@ -173,6 +174,7 @@ def test_the_gate_serves_and_refuses_without_the_executor_taking(gated_node):
     assert again is not None and again.values[0].double_value == 2.5
 
 
+@pytest.mark.ros
 def test_destroying_the_node_ends_the_gate(gated_node):
     """destroy_node stops the gate's thread first, then destroys the node as rclpy does."""
     node, gate, *_ = gated_node

@@ -59,6 +59,7 @@ def test_the_handover_default_is_stated_and_below_the_watchdog():
                                                "commander_handovers"]
 
 
+@pytest.mark.ros
 def test_a_second_publisher_is_refused_counted_and_logged_once(make_node):
     node = make_node()
     tick(node)
@@ -78,6 +79,7 @@ def test_a_second_publisher_is_refused_counted_and_logged_once(make_node):
     assert node.log.count("one commander at a time") == 1
 
 
+@pytest.mark.ros
 def test_handover_only_after_the_stated_silence(make_node):
     node = make_node(command_handover_cycles=5)
     tick(node)
@@ -99,6 +101,7 @@ def test_handover_only_after_the_stated_silence(make_node):
     assert (t["commands_foreign"], t["commander_handovers"]) == (2, 1)
 
 
+@pytest.mark.ros
 def test_a_commander_that_keeps_commanding_is_never_displaced(make_node):
     """Every tick has A's command: however long B publishes, B is refused."""
     node = make_node(command_handover_cycles=5)
@@ -111,6 +114,7 @@ def test_a_commander_that_keeps_commanding_is_never_displaced(make_node):
     assert node.stats.commands_foreign == 50 and node.stats.commander_handovers == 0
 
 
+@pytest.mark.ros
 def test_a_bad_command_does_not_take_over(make_node):
     """After the silence a publisher takes over with a valid command only: a command that is
     refused (wrong joints, NaN) leaves the commander as it was."""
@@ -129,6 +133,7 @@ def test_a_bad_command_does_not_take_over(make_node):
     assert node.stats.commander_handovers == 0 and node.log.count("handover:") == 0
 
 
+@pytest.mark.ros
 def test_a_restarted_controller_takes_over_before_the_watchdog_stops(make_node):
     """Defaults: the old controller falls silent, the new one (another GID) answers every
     tick from then on: it is refused for 50 ticks, then obeyed, and the watchdog (100)
@@ -147,6 +152,7 @@ def test_a_restarted_controller_takes_over_before_the_watchdog_stops(make_node):
     assert not node.safe_stop and node.stats.commander_handovers == 1
 
 
+@pytest.mark.ros
 def test_lockstep_follows_the_same_rule_in_wall_time(make_node):
     node = make_node(mode="lockstep", command_handover_cycles=20)
     node._publish_state(0, 0)                    # the first state
@@ -166,6 +172,7 @@ def test_lockstep_follows_the_same_rule_in_wall_time(make_node):
     assert node.plant.time == pytest.approx(2 * PERIOD) and node.stats.commands_foreign == 3
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("name", ["watchdog_missed_cycles", "command_handover_cycles"])
 def test_cycle_counts_below_one_are_refused(make_node, name):
     from cr_control.core.parameters import ParameterError
@@ -183,6 +190,7 @@ def test_the_size_limit_is_64_joints_worth():
     assert len(serialize_message(JointState(name=["j"] * 1000, effort=[0.0] * 1000))) > MAX_COMMAND_BYTES
 
 
+@pytest.mark.ros
 def test_an_oversized_command_is_refused_unread_and_counted(make_node):
     node = make_node()
     tick(node)
@@ -215,6 +223,7 @@ def _probe_and_subscriber(probe_name: str, topic: str):
     return probe, context, node, sub, got
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("executor", [EventsExecutor, SingleThreadedExecutor])
 def test_sender_aware_subscription_reports_each_publishers_gid(executor):
     """Two publishers of another participant: each message comes with its publisher's GID
@@ -252,6 +261,7 @@ def test_sender_aware_subscription_reports_each_publishers_gid(executor):
         probe.close()
 
 
+@pytest.mark.ros
 def test_one_wake_up_takes_what_is_queued():
     """A flood (issue 25's 50 000 states from a second publisher) costs one take per message,
     not one executor wake-up: take_data() takes every queued message, up to its bound."""
@@ -283,6 +293,7 @@ def test_one_wake_up_takes_what_is_queued():
         probe.close()
 
 
+@pytest.mark.ros
 def test_the_plant_refuses_a_second_publisher_over_ros(make_node):
     """The plant's own subscription: the first publisher's valid command makes it the
     commander; a second publisher's commands are refused and counted, its oversized one too."""
@@ -321,6 +332,7 @@ def test_the_plant_refuses_a_second_publisher_over_ros(make_node):
         probe.close()
 
 
+@pytest.mark.ros
 def test_a_rogue_beside_a_running_controller_is_refused(ros_env):
     """The fuzz of issue 25, real time: beside plant and adaptive_impedance, a second
     publisher sends a +-20 N m bang-bang for 1 s, then 1e308. Before: obeyed, 5 rad/s and

@@ -52,6 +52,7 @@ def answer(node: PlantNode, effort: list[float], stamp: int | None = None) -> No
     node._on_command(serialize_message(msg))    # the subscription is raw: bytes
 
 
+@pytest.mark.ros
 def test_an_answer_steps_on_arrival_and_the_tick_only_publishes(node):
     ref = reference_plant()
     tick(node, 1)                                  # first state, with the initial command
@@ -81,6 +82,7 @@ def test_an_answer_steps_on_arrival_and_the_tick_only_publishes(node):
     assert node.stats.total_cycles == 3 and node.stats.total_fresh == 1
 
 
+@pytest.mark.ros
 def test_a_late_tick_integrates_the_rest_and_a_stale_answer_waits_for_the_tick(node):
     ref = reference_plant()
     tick(node, 1)
@@ -103,6 +105,7 @@ def test_a_late_tick_integrates_the_rest_and_a_stale_answer_waits_for_the_tick(n
     assert node.stats.total_fresh == 1
 
 
+@pytest.mark.ros
 def test_the_second_report_is_done_one_chore_per_idle_slot_never_in_one_callback(node):
     """The once-a-second report (~1.5 ms in one piece, a late tick every second) is queued:
     each step ahead runs one piece after answering; with no step ahead (no answer, a safe
@@ -152,6 +155,7 @@ def slow_ticks(node: PlantNode, clock: _Clock, count: int, spacing_s: float) -> 
         node._tick()
 
 
+@pytest.mark.ros
 def test_the_watchdog_trips_on_wall_time_when_the_ticks_slow_down(node, monkeypatch):
     """A plant ticking at 33 Hz (publishes blocked on a dead reader) after its controller's
     last command: the safe stop comes after watchdog.WALL_FACTOR times watchdog_missed_cycles
@@ -208,6 +212,7 @@ rclpy.shutdown(context=context)
 """
 
 
+@pytest.mark.ros
 @needs_erd
 @pytest.mark.parametrize("robot", ["panda", "ur5"])
 def test_a_realtime_plant_loads_its_kernels_before_its_first_tick(ros_env, robot):

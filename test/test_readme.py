@@ -244,6 +244,7 @@ def _rank(command: str) -> int:
     return ORDER.index(program)
 
 
+@pytest.mark.ros
 def test_the_readme_commands_run(tmp_path, ros_env, reproduce_quick):
     readme = Readme(ros_env, tmp_path, reproduce_quick)
     commands = sorted(run_commands(), key=_rank)

@@ -243,12 +243,14 @@ def check_complete_file(path: Path, sent: dict[str, list], n: int) -> dict:
     return content
 
 
+@pytest.mark.ros
 def test_sigterm_leaves_complete_rosbag2_style_file(tmp_path, ros_env):
     n = 300
     path, sent, _ = run_session(tmp_path, ros_env, signal.SIGTERM, n)
     check_complete_file(path, sent, n)
 
 
+@pytest.mark.ros
 def test_sigint_and_missing_topic_still_complete(tmp_path, ros_env):
     n = 50
     # Named parameter nodes: after a 1 s ready timeout the graph may not show the node yet.
@@ -260,6 +262,7 @@ def test_sigint_and_missing_topic_still_complete(tmp_path, ros_env):
     assert "/never_published" not in {c.topic for c in content["summary"].channels.values()}
 
 
+@pytest.mark.ros
 def test_burst_is_recorded_whole_uncompressed(tmp_path, ros_env):
     """A burst (no pause) of 1500 messages per topic: taken in batches, nothing lost."""
     n = 1500
@@ -306,6 +309,7 @@ def test_writer_file_opens_in_strict_readers(tmp_path):
     assert counts == {topics.JOINT_STATES: n, STATUS: n, "/never": 0}
 
 
+@pytest.mark.ros
 def test_a_topic_first_seen_through_a_subscriber_is_recorded_reliably(tmp_path, ros_env):
     """A topic is in the graph as soon as anyone subscribes (the plant to /joint_commands
     before the controller publishes): the recorder waits for a publisher and adapts to

@@ -97,6 +97,7 @@ def test_velocity_limits_are_the_urdf_ones():
 
 
 # -- the node, realtime ----------------------------------------------------------------------
+@pytest.mark.ros
 def test_contact_force_reflex_in_realtime_brakes_logs_once_and_resumes(make_node):
     node = make_node(max_contact_force=2.0)
     tick(node)
@@ -138,6 +139,7 @@ def test_contact_force_reflex_in_realtime_brakes_logs_once_and_resumes(make_node
     assert node.command.tolist() == [0.2, 0.3]
 
 
+@pytest.mark.ros
 def test_joint_velocity_reflex_at_the_urdf_limit(make_node):
     node = make_node()
     tick(node)
@@ -158,6 +160,7 @@ def test_joint_velocity_reflex_at_the_urdf_limit(make_node):
     assert timing(node)["safe_stop_reason"] == SAFE_STOP_JOINT_VELOCITY
 
 
+@pytest.mark.ros
 def test_the_watchdog_reports_its_reason_and_a_reflex_does_not_overwrite_it(make_node):
     node = make_node(watchdog_missed_cycles=3, max_contact_force=2.0)
     tick(node)
@@ -172,6 +175,7 @@ def test_the_watchdog_reports_its_reason_and_a_reflex_does_not_overwrite_it(make
 
 
 # -- the node, lockstep ----------------------------------------------------------------------
+@pytest.mark.ros
 def test_contact_force_reflex_in_lockstep_brakes_and_the_loop_goes_on(make_node):
     """After the trip each command still steps the plant one period, with the brakes'
     command instead of the controller's, and a new state goes out."""
@@ -207,6 +211,7 @@ def test_contact_force_reflex_in_lockstep_brakes_and_the_loop_goes_on(make_node)
     assert node.command.tolist() == [0.0, 0.0] and not node.safe_stop
 
 
+@pytest.mark.ros
 def test_position_plant_reflex_in_lockstep_retracts(make_node):
     node = make_node(scenario="dynamic_constraint", mode="lockstep", max_contact_force=1.6)
     start_lockstep(node)
@@ -286,6 +291,7 @@ def test_dynamic_constraint_safe_stop_after_the_mrac_divergence_keeps_the_force_
 MRAC_DURATION = 17.0
 
 
+@pytest.mark.ros
 def test_mrac_force_with_thesis_defaults_ends_in_a_reflex_stop(tmp_path):
     """mrac_force diverges with its thesis defaults (6600 N by 60 s); in a lockstep session
     the plant's force reflex stops it at 5 N: the recording shows safe_stop_reason 2, the

@@ -123,6 +123,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
     assert len(err) == 1 and "not JSON" in err[0]
 
 
+@pytest.mark.ros
 def test_results_md_claims_blocks_equal_the_quick_run(reproduce_quick):
     """docs/results.md's generated blocks are what the quick run's claims.json gives
     (regenerate: cr_reproduce --quick --out DIR --write-tables docs/results.md)."""
@@ -131,6 +132,7 @@ def test_results_md_claims_blocks_equal_the_quick_run(reproduce_quick):
     assert rt.main([str(reproduce_quick / "claims.json"), "--check", str(RESULTS)]) == 0
 
 
+@pytest.mark.ros
 def test_cr_reproduce_write_tables_leaves_an_agreeing_results_md_unchanged(reproduce_quick,
                                                                           tmp_path):
     """``cr_reproduce --quick --out DIR --write-tables FILE`` (resuming the session's quick

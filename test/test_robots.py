@@ -167,6 +167,7 @@ LOCKSTEP_S = 2.0
 LOCKSTEP_TOL = {"e": 1e-4, "f": 2.0, "tau": 3.0, "e_rot": 1e-3}
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("robot,scheme", CASES, ids=[f"{r}-{s}" for r, s in CASES])
 def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
     """Plant, controller and recorder over ROS in lockstep for 2 s on the robot: the

@@ -17,6 +17,8 @@ from std_msgs.msg import Float64MultiArray
 from cr_control.core import topics
 from cr_control.core.ros_env import isolated_env
 
+pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)
+
 NODE = "adaptive_impedance"
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 

@@ -21,6 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from cr_control.core import topics
+from cr_control.models.brake import brake_torque, stop_position
 from cr_control.schemes.registry import make_controller
 from cr_sim.plant_node import NODE_PARAMETERS, command_limiter
 from cr_sim.plants.base import CommandLimiter
@@ -94,17 +95,20 @@ def test_safe_stop_brakes_to_rest_and_holds_the_arm_in_contact():
 
 
 def test_damping_only_brakes_let_the_plane_push_the_arm_away():
-    """Why the brakes hold (brake_stiffness): with damping only the contact spring pushes
-    the arm out of the plane by several centimetres."""
+    """Why the brakes hold (the w_b^2 term, toward where they stop): with damping only,
+    tau = G - M(q) w_b q' (the law held toward q + q'/w_b of every cycle), the contact
+    spring pushes the arm out of the plane by several centimetres."""
     plant, ctl = make_plant("compliant_plane"), make_controller("adaptive_impedance")
     for _ in range(1000):
         m = plant.measurement()
         plant.step(ctl.step(m.time, m.position, m.velocity, m.force).command, PERIOD)
-    plant.brake_stiffness = 0.0
-    plant.begin_safe_stop()
     r0 = plant.arm.tool_position(plant.measurement().position)
+    w = plant.brake_frequency
     for _ in range(2000):
-        plant.step(plant.safe_stop_command(), PERIOD)
+        m = plant.measurement()
+        q, v = m.position, m.velocity
+        plant.step(brake_torque(plant.brake_inertia(q), plant.gravity_torque(q), q, v,
+                                stop_position(q, v, w), w), PERIOD)
     assert np.linalg.norm(plant.arm.tool_position(plant.measurement().position) - r0) > 0.03
 
 
@@ -142,6 +146,7 @@ def describe_states(stamps: list[int], efforts: list[tuple], killed_ns: int) -> 
             f"effort before the kill {max(runs, default=0)} states, the last ones {runs[-5:]}")
 
 
+@pytest.mark.ros
 def test_killed_controller_leads_to_a_safe_stop_and_the_arm_stays_put(ros_env, probe):
     """SIGKILL the controller of a real-time session: the plant brakes after
     watchdog_missed_cycles ticks without a command, the end effector moves < 10 mm after
@@ -219,6 +224,7 @@ def test_killed_controller_leads_to_a_safe_stop_and_the_arm_stays_put(ros_env, p
     assert "Traceback" not in out and "FATAL" not in out
 
 
+@pytest.mark.ros
 def test_rogue_commands_are_clipped_or_refused_and_counted(ros_env, probe):
     """A 1e9 N m command leaves the state finite and within limits (counted as clipped);
     a 3-element command for 2 joints and unknown joint names are refused (counted); a
@@ -263,6 +269,7 @@ def test_rogue_commands_are_clipped_or_refused_and_counted(ros_env, probe):
     assert out.count("publishers on /joint_states") == 1
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("content", [
     "plant: [unclosed\n  x: {",                                 # not YAML
     "- 1\n- 2\n",                                               # not a mapping
@@ -283,6 +290,7 @@ def test_bad_params_file_is_one_line_and_an_exit_code(tmp_path, ros_env, content
     assert len(lines) == 1 and "refused to start" in lines[0], proc.stderr
 
 
+@pytest.mark.ros
 def test_bad_params_file_for_a_controller(tmp_path, ros_env):
     for content in ("adaptive_impedance: [1\n", "adaptive_impedance:\n  ros__parameters:\n"
                     "    max_effort: [1, 2]\n"):
@@ -295,6 +303,7 @@ def test_bad_params_file_for_a_controller(tmp_path, ros_env):
         assert len(lines) == 1 and lines[0].startswith("adaptive_impedance: refused to start")
 
 
+@pytest.mark.ros
 def test_ctrl_c_of_a_running_plant_is_quiet(ros_env):
     """Issue 7: 4 of 8 SIGINTs printed [FATAL] Exception in 'timers' callback."""
     controller = start_node(CONTROLLER, ros_env)

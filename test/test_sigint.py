@@ -46,6 +46,8 @@ from ros_probe import RosProbe, next_domain
 
 from cr_control.core.ros_env import isolated_env
 
+pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)
+
 SCHEME = "adaptive_impedance"
 #: Plant + controller pairs stopped under parameter traffic, BATCH at a time.
 STOPS = 16

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from types import SimpleNamespace
 
+import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_probe import RosProbe, next_domain, stop_node
@@ -51,6 +52,7 @@ def diagnostic_value(arrays: list, key: str) -> str | None:
     return None
 
 
+@pytest.mark.ros
 def test_a_second_publisher_never_reaches_the_controller_and_takes_over_once_the_first_left():
     domain = next_domain()
     env = isolated_env(domain_id=domain)

@@ -115,6 +115,7 @@ def runs(tmp_path_factory):
     return out
 
 
+@pytest.mark.ros
 def test_same_table_on_any_number_of_workers(runs):
     root: Path = runs["root"]
     one = runs["one"]
@@ -139,11 +140,13 @@ def test_same_table_on_any_number_of_workers(runs):
           f"flight {runs['one_s']:.1f} s, 2 in flight {runs['two_s']:.1f} s")
 
 
+@pytest.mark.ros
 def test_local_ray_listens_and_connects_on_loopback_only(runs):
     bad, wildcard = runs["net"]
     assert not bad and wildcard == 0, (bad, wildcard)
 
 
+@pytest.mark.ros
 def test_resume_computes_only_the_missing_points(runs):
     resumed, root = runs["resumed"], runs["root"]
     assert (resumed.computed, resumed.skipped) == (4, 2)
@@ -154,6 +157,7 @@ def test_resume_computes_only_the_missing_points(runs):
     assert (again.computed, again.skipped) == (0, 6)
 
 
+@pytest.mark.ros
 def test_another_spec_in_the_same_directory_is_refused(runs):
     spec, targets = parse_spec({**SPEC, "duration": 0.4})
     with pytest.raises(SpecError, match="holds another sweep"):

@@ -36,7 +36,7 @@ SPEC = {"scheme": "adaptive_impedance", "duration": 1.5,
                  "adaptive_impedance.Q_c": [5, 50]},
         "metrics": ["pos_err_rms_last_half_m", "f_err_x_rms_N"]}
 
-pytestmark = pytest.mark.skipif(shutil.which("ss") is None, reason="needs ss (iproute2)")
+pytestmark = [pytest.mark.ros, pytest.mark.skipif(shutil.which("ss") is None, reason="needs ss (iproute2)")]
 
 
 def _env() -> dict[str, str]:

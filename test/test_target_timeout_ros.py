@@ -14,6 +14,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 from geometry_msgs.msg import PoseStamped
 from ros_probe import RosProbe
 from sensor_msgs.msg import JointState
@@ -21,6 +22,8 @@ from sensor_msgs.msg import JointState
 from cr_control.analysis.analyze import load_session
 from cr_control.schemes.blocks.contact_guard import POSE_STALE
 from cr_control.tools.session import Session, SessionConfig
+
+pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)
 
 SCHEME = "adaptive_impedance"
 STREAM_S = 2.0

@@ -201,6 +201,7 @@ def test_joint_names_set_the_command_order():
         make_controller("impedance", {**values, "joint_names": ["a", "b"]})
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize("override,reason", [
     ("urdf_file:=nope.urdf", "urdf_file nope.urdf: no such file"),
     ("tip_link:=nowhere", "tip_link 'nowhere' is not a link of the URDF"),

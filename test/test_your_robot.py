@@ -49,6 +49,8 @@ from cr_control.tools import robots
 from cr_control.tools.offline import run_scheme
 from cr_sim.plants.registry import make_plant
 
+pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)
+
 QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 FORWARD_TOPIC = "/effort_controller/commands"
 ARM = [f"panda_joint{i}" for i in range(1, 8)]

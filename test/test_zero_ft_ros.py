@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from geometry_msgs.msg import WrenchStamped
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from robot_data import needs_erd
@@ -25,7 +26,7 @@ from cr_control.core.paths import config_file
 from cr_control.tools import robots
 from cr_sim.plants.registry import make_plant
 
-pytestmark = needs_erd
+pytestmark = [pytest.mark.ros, needs_erd]
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 SERVICE = "/adaptive_impedance/zero_ft"
 
