@@ -52,6 +52,12 @@ Safety (issue 7), modelled on libfranka:
   with the values (``REFLEX: ...``), ``safe_stop_reason`` 2 (force) or 3 (velocity), ended
   by ``resume`` as above. In lockstep each command still advances the plant one period (the
   loop and a recording go on deterministically) but the brakes' command is applied instead.
+  The comparisons pass only a value inside its limit (:func:`reflex`): NaN trips them.
+- No NaN leaves the plant: after every step the true state is checked
+  (:meth:`~cr_sim.plants.base.Plant.state_is_finite`), and every message's values before it
+  is published. A non-finite one cannot be braked: the node publishes nothing more (the last
+  state out was finite), logs one ERROR line (``NON-FINITE: ...``) and finishes with exit
+  code 1; a controller sees its states stop.
 - One commander at a time (issue 25; ros2_control lets one controller claim an interface,
   libfranka takes one control connection): the publisher of the first valid command is
   the commander; commands from any other publisher on /joint_commands are refused unread
@@ -94,6 +100,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import replace
+from math import isfinite
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
@@ -106,6 +113,7 @@ from std_msgs.msg import Bool, Float64MultiArray, MultiArrayDimension, String
 
 from cr_control.core import cdr, topics
 from cr_control.core.parameters import Bound, Param, ParameterError
+from cr_control.models.brake import MAX_BRAKE_STEP
 from cr_control.nodes import sender_aware
 from cr_control.nodes.diagnostics import PlantDiagnostics
 from cr_control.nodes.lockstep import ReaderPacer, wait_for_readers
@@ -153,12 +161,12 @@ NODE_PARAMETERS = [
           "gravity held, joints damped to rest and held there, until resume is set), hold "
           "(keep applying the last command, logged) or disabled (not 'off': YAML reads that as "
           "false).", "choice", choices=("safe_stop", "hold", "disabled"), read_only=True),
-    Param("brake_damping", 30.0, "Safe stop: joint damping K_d of tau = G(q) - K_d q' - "
-          "K_p (q - q_stop) (N m s/rad).", "positive", read_only=True, bound=Bound.DAMPING),
-    Param("brake_stiffness", 1000.0, "Safe stop: holding stiffness K_p about the position "
-          "where braking began (N m/rad); 0 = damping only (contact forces then push the arm "
-          "away: ~70 mm on the ch. 3 plane).", "nonnegative", read_only=True,
-          bound=Bound.STIFFNESS),
+    Param("brake_frequency", 50.0, "Safe stop of effort plants: natural frequency w_b "
+          "(rad/s) of the brakes tau = G(q) - M(q) (2 w_b q' + w_b^2 (q - q_stop)), q_stop = "
+          "q + q'/w_b when braking began: every joint, whatever its inertia, slows as "
+          "e^(-w_b t) and is held where it stops. At most "
+          f"{MAX_BRAKE_STEP:g} x rate_hz (a torque held for a period brakes stably only so).",
+          "positive", read_only=True, bound=Bound.BANDWIDTH),
     Param("resume", False, "Set to true to leave a safe stop (the plant applies commands "
           "again and sets this back to false). Never happens by itself.", "bool"),
     Param("effort_limit", [0.0], "Joint effort limits (N m): one value for every joint or "
@@ -231,6 +239,28 @@ def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimit
     return CommandLimiter([-e for e in effort], effort, rate, period)
 
 
+def reflex(plant: Plant, max_force: float,
+           velocity_limits: list[tuple[int, float, str]]) -> tuple[int, str] | None:
+    """The reflex the plant's true state trips now, as (``safe_stop_reason``, the log line's
+    start), or None: a contact force (:meth:`~cr_sim.plants.base.Plant.contact_force_magnitude`)
+    above ``max_force``, else the first joint (index into ``true_velocity()``, limit, name
+    of ``velocity_limits``) faster than its limit. Each comparison passes only a value
+    inside its limit (``not abs(f) <= limit``): NaN and infinities trip it, as any value
+    that is not a number must (with ``f > limit``, NaN passed)."""
+    force = plant.contact_force_magnitude()
+    if not abs(force) <= max_force:
+        return (SAFE_STOP_CONTACT_FORCE,
+                f"REFLEX: contact force {force:.4g} N > max_contact_force {max_force:g} N")
+    if velocity_limits:
+        velocity = plant.true_velocity()
+        for i, limit, name in velocity_limits:
+            if not abs(velocity[i]) <= limit:
+                return (SAFE_STOP_JOINT_VELOCITY,
+                        f"REFLEX: joint {name} velocity {velocity[i]:.4g} beyond its URDF "
+                        f"<limit velocity> {limit:g}")
+    return None
+
+
 def unlimited_joints(plant: Plant, limiter: CommandLimiter) -> list[str]:
     """Joints whose commands the limiter does not bound."""
     return [name for name, lo, hi in zip(plant.command_joints, limiter.lower, limiter.upper, strict=True)
@@ -298,6 +328,14 @@ class PlantNode(Node):
         self.plant = factory(values)
         police_changes(self, [SCENARIO_PARAMETER, *NODE_PARAMETERS, *specs], self._on_parameter)
         self.period = 1.0 / self.settings["rate_hz"]
+        brake_frequency = self.settings["brake_frequency"]
+        if brake_frequency * self.period > MAX_BRAKE_STEP:
+            raise ParameterError(
+                f"brake_frequency {brake_frequency:g} rad/s is too high for rate_hz "
+                f"{self.settings['rate_hz']:g}: a brake torque held for a period is stable only "
+                f"up to brake_frequency = {MAX_BRAKE_STEP:g} x rate_hz "
+                f"({MAX_BRAKE_STEP * self.settings['rate_hz']:g} rad/s here)")
+        self.plant.brake_frequency = brake_frequency
         self.lockstep = self.settings["mode"] == "lockstep"
         # Realtime: this process runs at the real-time loop's CPU weight (spin_nodes;
         # cr_control.nodes.realtime_priority), and its first tick is not its first step.
@@ -306,14 +344,14 @@ class PlantNode(Node):
             warm_up(factory(values), self.period)
         self.joint_names = list(self.plant.joint_names)
         self.command_names = tuple(self.plant.command_joints)
-        self.plant.brake_damping = self.settings["brake_damping"]
-        self.plant.brake_stiffness = self.settings["brake_stiffness"]
         self.limiter = command_limiter(self.plant, self.settings, self.period)
         if unbounded := unlimited_joints(self.plant, self.limiter):
             self.get_logger().warn(f"no command limit known for {unbounded} (no URDF limit): "
                                    "commands to them are not bounded" + ("; set effort_limit" if
                                    self.plant.command_interface == "effort" else ""))
         self.finished = Future()
+        #: The process's exit code once finished: 1 after a non-finite state (:meth:`_stop_non_finite`).
+        self.exit_code = 0
         self.stats = LoopStats()
         self.scenario = scenario["scenario"]
         # First of our endpoints, so that whoever discovers the states discovers it too.
@@ -522,10 +560,14 @@ class PlantNode(Node):
         self._q_out[:] = m.position
         self._v_out[:] = m.velocity
         self._e_out[:] = m.effort
-        state.set_stamp(sec, nanosec)
-        wrench.set_stamp(sec, nanosec)
         self._wrench_out[:3] = m.force
         self._wrench_out[3:] = m.torque
+        if not isfinite(self._q_out.sum() + self._v_out.sum() + self._e_out.sum()
+                        + self._wrench_out.sum()):
+            self._stop_non_finite("the joint state or wrench to publish")
+            return
+        state.set_stamp(sec, nanosec)
+        wrench.set_stamp(sec, nanosec)
         if self.clock_pub is not None:
             self._clock_out.set_stamp(sec, nanosec)
             self.clock_pub.publish(self._clock_out.message())
@@ -533,6 +575,9 @@ class PlantNode(Node):
         if self.sensors_pub is not None:
             self._sensors_out[0] = sec + nanosec * 1e-9
             self._sensors_out[1:] = self.plant.sensors()
+            if not isfinite(self._sensors_out.sum()):
+                self._stop_non_finite("a plant sensor to publish")
+                return
             self.sensors_pub.publish(self._sensors.message())
         self.state_pub.publish(state.message())
         self._contact_count += 1
@@ -542,6 +587,9 @@ class PlantNode(Node):
             self._contact.set_stamp(sec, nanosec)
             self._contact_out[:3] = truth.force
             self._contact_out[3:] = truth.torque
+            if not isfinite(self._contact_out.sum()):
+                self._stop_non_finite("the true contact wrench to publish")
+                return
             self.contact_pub.publish(self._contact.message())
         now = time.monotonic()
         key = sec * 1_000_000_000 + nanosec
@@ -704,27 +752,35 @@ class PlantNode(Node):
     # -- stepping -------------------------------------------------------------------
     def _step(self) -> None:
         """One period of the plant: with the held command, or the brakes' in a safe stop;
-        then the reflexes on the new state."""
+        then, on the new state, the finiteness check (a non-finite state stops the node:
+        :meth:`_stop_non_finite`) and the reflexes (:func:`reflex`)."""
         if self.safe_stop:                               # brakes act on every step
             self._command_list = self.limiter.bound(self.plant.safe_stop_command())
             self.command = np.array(self._command_list)
             self.plant.step(self.command, self.period)
+            if not self.plant.state_is_finite():
+                self._stop_non_finite("the plant's state")
             return
         self.plant.step(self.command, self.period)
-        force = self.plant.contact_force_magnitude()
-        if force > self._max_force:
-            self._engage_safe_stop(
-                SAFE_STOP_CONTACT_FORCE,
-                f"REFLEX: contact force {force:.4g} N > max_contact_force {self._max_force:g} N")
-        elif self._velocity_limits:
-            velocity = self.plant.true_velocity()
-            for i, limit, name in self._velocity_limits:
-                if abs(velocity[i]) > limit:
-                    self._engage_safe_stop(
-                        SAFE_STOP_JOINT_VELOCITY,
-                        f"REFLEX: joint {name} velocity {velocity[i]:.4g} beyond its URDF "
-                        f"<limit velocity> {limit:g}")
-                    return
+        if not self.plant.state_is_finite():
+            self._stop_non_finite("the plant's state")
+            return
+        tripped = reflex(self.plant, self._max_force, self._velocity_limits)
+        if tripped is not None:
+            self._engage_safe_stop(*tripped)
+
+    def _stop_non_finite(self, what: str) -> None:
+        """``what`` became non-finite: no brake can act on a non-finite state and nothing
+        non-finite may leave the plant, so publish nothing more, say so in one ERROR line and
+        finish (the process exits with code 1). The last state published was finite."""
+        if self.finished.done():
+            return
+        self.exit_code = 1
+        self.get_logger().error(
+            f"NON-FINITE: {what} is not finite at t = {self.plant.time:.3f} s: nothing more is "
+            "published (the last state was finite) and the plant stops, exit code 1; a "
+            "controller sees its states stop")
+        self._finish()
 
     def _engage_safe_stop(self, reason: int, what: str) -> None:
         """Brake from the next step on until resumed; log it once with why (a safe stop
@@ -745,6 +801,8 @@ class PlantNode(Node):
     def _lockstep_step(self) -> None:
         start = time.perf_counter()
         self._step()
+        if self.finished.done():
+            return
         self.stats.cycle(True, time.perf_counter() - start)
         if self._out_of_time():
             self._finish()
@@ -810,6 +868,8 @@ class PlantNode(Node):
         ahead, self._ahead_time = self._ahead_time, None
         for _ in range(substeps - (ahead is not None)):
             self._step()
+            if self.finished.done():
+                return
         self.stats.cycle(fresh, time.perf_counter() - start + (ahead or 0.0))
         if self._out_of_time():
             self._finish()
@@ -883,7 +943,7 @@ def main(args: list[str] | None = None) -> int:
     if nodes is None:
         return 1
     spin_nodes(nodes, until=nodes[0].finished)
-    return 0
+    return nodes[0].exit_code
 
 
 if __name__ == "__main__":

@@ -34,6 +34,40 @@ The sensor must ride on the tip's body: ``sensor_link`` must lie on the path fro
 ``base_link`` to ``tip_link`` with only fixed joints between it and the tip; else, and for a
 negative mass, a non-physical inertia or a URDF that already has a link or joint of those
 names, :class:`RobotModelError`.
+
+What is checked before Pinocchio parses a URDF
+----------------------------------------------
+A robot description comes from a parameter or a file, so it is checked with Python's
+``xml.etree`` (non-recursive) before Pinocchio's parser (urdfdom), which recurses along the
+kinematic tree (a chain 4000 links deep crashed every node that loaded it with SIGSEGV)
+and trusts the numbers (a joint origin of 1e300 m, a zero or negative mass, a velocity
+limit of 0 were accepted and failed later, as NaN states, a wrist joint at 13 times its
+velocity limit, or a joint without a reflex). :func:`check_urdf` refuses, each with a
+one-line :class:`RobotModelError` naming the link or joint:
+
+- more than :data:`MAX_URDF_CHARS` characters (4 MiB; the Panda's URDF has 15 kB) - a file
+  is read no further than that;
+- an entity declaration (``<!ENTITY``): a URDF has no use for one, and an expansion that
+  stays under expat's own limit took 4 GB and 42 s to start;
+- XML that does not parse, a root element other than ``<robot>``;
+- more than :data:`MAX_LINKS` links or joints (so the tree is at most that deep);
+- an ``<origin>`` (of a joint, an inertial, a visual or a collision) whose ``xyz`` is not
+  finite or more than :data:`MAX_OFFSET` (100 m) from its frame, or whose ``rpy`` is not
+  finite; a joint ``<axis>`` that is not finite or is zero;
+- an ``<inertial>`` whose mass is not finite, negative or above :data:`MAX_LINK_MASS`, or
+  whose inertia is not finite, not positive semi-definite, has a principal moment above
+  :data:`MAX_LINK_INERTIA`, or is not zero on a massless link;
+- ``<limit>`` values that are not finite, ``<dynamics>`` damping or friction that is not a
+  finite number >= 0.
+
+:func:`load_chain` then checks the chain's joints (those a controller drives and a plant
+simulates): the link each one moves (its child) has an ``<inertial>`` with a mass of at
+least :data:`MIN_MASS` and a positive definite inertia (every principal moment at least
+:data:`MIN_INERTIA`; links fixed to it may be massless frames); a revolute or prismatic
+joint's ``lower`` is not above its ``upper``; a ``<limit>``'s ``effort`` and ``velocity``
+are > 0. A 0 there means "not given" to some tools, but here it would silently remove the
+joint's command clip and rate limit (effort) or its velocity reflex (velocity): it is
+refused; a joint without ``<limit>`` (a continuous joint) has none, as before.
 """
 
 from __future__ import annotations
@@ -66,8 +100,23 @@ JOINT_KINDS = {
     **dict.fromkeys(("JointModelPX", "JointModelPY", "JointModelPZ",
                      "JointModelPrismaticUnaligned"), PRISMATIC),
 }
-#: Smallest mass (kg) and rotational inertia (kg m^2) the bodies moved by a joint may have.
+#: Smallest mass (kg) of the link each joint of a chain moves (and of all it carries).
 MIN_MASS = 1e-9
+#: Smallest principal moment of inertia (kg m^2) of the link each joint of a chain moves
+#: (the lightest link of the arms here: the so100's gripper, 3e-6 kg m^2).
+MIN_INERTIA = 1e-12
+#: The most characters a robot description may have (4 MiB; the Panda's URDF: 15 kB).
+MAX_URDF_CHARS = 4 * 1024 * 1024
+#: The most links, and the most joints, a robot description may have (the largest URDF of
+#: example-robot-data, the Tiago with its arm, has 130 links; Pinocchio's parser recurses
+#: along the tree and crashed at 4000 links deep).
+MAX_LINKS = 500
+#: The farthest an ``<origin>`` may place a frame from its parent (m).
+MAX_OFFSET = 100.0
+#: The heaviest link (kg) and the largest principal moment of inertia (kg m^2) a robot
+#: description may give: 10x the heaviest industrial arms' links.
+MAX_LINK_MASS = 1e4
+MAX_LINK_INERTIA = 1e4
 
 
 class RobotModelError(ValueError):
@@ -231,15 +280,186 @@ def resolve_urdf_file(name: str) -> Path:
 
 
 def urdf_text(robot_description: str, urdf_file: str) -> str:
-    """The URDF XML: ``robot_description`` if given, else the contents of ``urdf_file``."""
+    """The URDF XML: ``robot_description`` if given, else the contents of ``urdf_file`` (read
+    no further than :data:`MAX_URDF_CHARS` and one more character: :func:`check_urdf`
+    refuses a longer one)."""
     if robot_description.strip():
         return robot_description
     if not urdf_file.strip():
         raise RobotModelError("no robot given: set robot_description (the URDF XML) or urdf_file")
     try:
-        return resolve_urdf_file(urdf_file).read_text()
+        with resolve_urdf_file(urdf_file).open(encoding="utf-8") as f:
+            return f.read(MAX_URDF_CHARS + 1)
     except (OSError, UnicodeDecodeError) as exc:
         raise RobotModelError(f"urdf_file {urdf_file}: cannot read it ({exc})") from None
+
+
+# -- checking a robot description (module docstring) -------------------------------------------
+def _numbers(element: ET.Element, attribute: str, size: int, where: str) -> tuple[float, ...] | None:
+    """The ``size`` numbers of ``element``'s ``attribute`` (None if it has none: the URDF's
+    default applies); RobotModelError unless they are that many finite numbers."""
+    text = element.get(attribute)
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split())
+    except ValueError:
+        values = ()
+    if len(values) != size or not all(math.isfinite(v) for v in values):
+        shown = " ".join(text.split())[:80]
+        raise RobotModelError(f"{where}: <{element.tag} {attribute}=\"{shown}\"> needs "
+                              + ("a finite number" if size == 1 else f"{size} finite numbers"))
+    return values
+
+
+def _check_origin(origin: ET.Element, where: str) -> None:
+    xyz = _numbers(origin, "xyz", 3, where)
+    _numbers(origin, "rpy", 3, where)
+    if xyz is not None and math.hypot(*xyz) > MAX_OFFSET:
+        raise RobotModelError(f"{where}: <origin xyz=\"{_xyz(xyz)}\"> places a frame "
+                              f"{math.hypot(*xyz):.3g} m from its parent: more than {MAX_OFFSET:g} m")
+
+
+def _inertia_moments(inertia: ET.Element, where: str) -> np.ndarray | None:
+    """The principal moments (ascending) of an ``<inertia>`` (None if it misses a value:
+    urdfdom then refuses the URDF)."""
+    values = [_numbers(inertia, a, 1, where) for a in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")]
+    if any(v is None for v in values):
+        return None
+    xx, xy, xz, yy, yz, zz = (v[0] for v in values)
+    return np.linalg.eigvalsh(np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]))
+
+
+def _check_link(link: ET.Element) -> None:
+    where = f"link {link.get('name')!r}"
+    for origin in link.iter("origin"):
+        _check_origin(origin, where)
+    for inertial in link.findall("inertial"):
+        mass_element = inertial.find("mass")
+        mass = _numbers(mass_element, "value", 1, where) if mass_element is not None else None
+        if mass is not None and not 0.0 <= mass[0] <= MAX_LINK_MASS:
+            raise RobotModelError(f"{where}: <mass value=\"{mass[0]:g}\">: a link's mass must be "
+                                  f">= 0 and at most {MAX_LINK_MASS:g} kg")
+        inertia = inertial.find("inertia")
+        moments = _inertia_moments(inertia, where) if inertia is not None else None
+        if moments is None:
+            continue
+        tol = 1e-12 + 1e-9 * float(np.max(np.abs(moments)))
+        if moments[0] < -tol:
+            raise RobotModelError(f"{where}: its <inertia> is not positive semi-definite (principal "
+                                  f"moments {_moments(moments)} kg m^2)")
+        if moments[2] > MAX_LINK_INERTIA:
+            raise RobotModelError(f"{where}: its <inertia> has a principal moment of "
+                                  f"{moments[2]:.3g} kg m^2: more than {MAX_LINK_INERTIA:g}")
+        if mass is not None and mass[0] == 0.0 and moments[2] > tol:
+            raise RobotModelError(f"{where}: rotational inertia (principal moments "
+                                  f"{_moments(moments)} kg m^2) without mass is not physical")
+
+
+def _moments(moments: np.ndarray) -> str:
+    return "[" + ", ".join(f"{m:.3g}" for m in moments) + "]"
+
+
+def _check_joint(joint: ET.Element) -> None:
+    where = f"joint {joint.get('name')!r}"
+    for origin in joint.findall("origin"):
+        _check_origin(origin, where)
+    for axis in joint.findall("axis"):
+        xyz = _numbers(axis, "xyz", 3, where)
+        if xyz is not None and math.hypot(*xyz) == 0.0:
+            raise RobotModelError(f"{where}: <axis xyz=\"{_xyz(xyz)}\"> is zero: a joint needs a "
+                                  "direction")
+    for limit in joint.findall("limit"):
+        for attribute in ("lower", "upper"):
+            _numbers(limit, attribute, 1, where)
+        for attribute in ("effort", "velocity"):
+            value = _numbers(limit, attribute, 1, where)
+            if value is not None and value[0] < 0.0:
+                _refuse_limit(where, attribute, value[0])
+    for dynamics in joint.findall("dynamics"):
+        for attribute in ("damping", "friction"):
+            value = _numbers(dynamics, attribute, 1, where)
+            if value is not None and value[0] < 0.0:
+                raise RobotModelError(f"{where}: <dynamics {attribute}=\"{value[0]:g}\"> must be >= 0 "
+                                      "(a negative one would drive the joint)")
+
+
+def check_urdf(xml: str) -> ET.Element:
+    """The root element of the robot description ``xml`` once it has passed the checks of the
+    module docstring ("What is checked before Pinocchio parses a URDF"); RobotModelError
+    (one line) with the first that fails. Linear in the size of ``xml``; nothing recurses."""
+    if len(xml) > MAX_URDF_CHARS:
+        size = f"{len(xml) / 2**20:.1f} MiB" if len(xml) <= 10 * MAX_URDF_CHARS else "more than 40 MiB"
+        raise RobotModelError(f"the URDF is {size} of text: more than the "
+                              f"{MAX_URDF_CHARS // 2**20} MiB a robot description may have")
+    if "<!ENTITY" in xml:
+        raise RobotModelError("the URDF declares an entity (<!ENTITY ...>): refused, a URDF has no "
+                              "use for one and its expansion can take gigabytes")
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError as exc:
+        raise RobotModelError(f"the URDF is not valid XML: {exc}") from None
+    if root.tag != "robot":
+        raise RobotModelError(f"the URDF's root element is <{root.tag}>, not <robot>")
+    links, joints = root.findall("link"), root.findall("joint")
+    for what, elements in (("links", links), ("joints", joints)):
+        if len(elements) > MAX_LINKS:
+            raise RobotModelError(f"the URDF has {len(elements)} {what}: more than the {MAX_LINKS} a "
+                                  "robot description may have")
+    for link in links:
+        _check_link(link)
+    for joint in joints:
+        _check_joint(joint)
+    return root
+
+
+def _check_chain_joints(root: ET.Element, names: tuple[str, ...]) -> None:
+    """The checks of the joints ``names`` of the chain (module docstring): the link each
+    moves has mass and a positive definite inertia; position limits in order; effort and
+    velocity limits > 0 where a ``<limit>`` gives them."""
+    joints = {joint.get("name"): joint for joint in root.findall("joint")}
+    links = {link.get("name"): link for link in root.findall("link")}
+    for name in names:
+        joint = joints.get(name)
+        if joint is None:                    # not a URDF joint (cannot happen with urdfdom)
+            continue
+        where = f"joint {name!r}"
+        child = joint.find("child")
+        link_name = child.get("link") if child is not None else None
+        link = links.get(link_name)
+        inertial = link.find("inertial") if link is not None else None
+        mass_element = inertial.find("mass") if inertial is not None else None
+        inertia = inertial.find("inertia") if inertial is not None else None
+        mass = _numbers(mass_element, "value", 1, where) if mass_element is not None else None
+        moments = _inertia_moments(inertia, where) if inertia is not None else None
+        if mass is None or mass[0] < MIN_MASS or moments is None or moments[0] < MIN_INERTIA:
+            given = ("no <inertial>" if inertial is None else
+                     f"mass {mass[0]:g} kg" if mass is not None and mass[0] < MIN_MASS else
+                     f"principal moments {_moments(moments)} kg m^2" if moments is not None
+                     else "an incomplete <inertial>")
+            raise RobotModelError(f"{where} moves link {link_name!r}, which has {given}: the link a "
+                                  f"joint of the chain moves needs a mass >= {MIN_MASS:g} kg and a "
+                                  f"positive definite inertia (principal moments >= {MIN_INERTIA:g} "
+                                  "kg m^2)")
+        limit = joint.find("limit")
+        if limit is None:
+            continue
+        lower, upper = (_numbers(limit, a, 1, where) or (0.0,) for a in ("lower", "upper"))
+        if joint.get("type") in ("revolute", "prismatic") and lower[0] > upper[0]:
+            raise RobotModelError(f"{where}: <limit lower=\"{lower[0]:g}\" upper=\"{upper[0]:g}\">: "
+                                  "the lower position limit is above the upper one")
+        for attribute in ("effort", "velocity"):
+            value = _numbers(limit, attribute, 1, where)
+            if value is not None and not value[0] > 0.0:
+                _refuse_limit(where, attribute, value[0])
+
+
+def _refuse_limit(where: str, attribute: str, value: float) -> None:
+    """RobotModelError for an effort or velocity ``<limit>`` that is not > 0."""
+    what, removed = {"effort": ("an effort limit", "its command clip and rate limit"),
+                     "velocity": ("a velocity limit", "its velocity reflex")}[attribute]
+    raise RobotModelError(f"{where}: <limit {attribute}=\"{value:g}\">: {what} must be > 0 "
+                          f"({value:g} would remove {removed}); give the joint's real limit")
 
 
 # -- building the chain --------------------------------------------------------------------------
@@ -262,11 +482,15 @@ def _captured_stderr() -> Iterator[list[str]]:
 
 
 def parse_urdf(xml: str) -> pin.Model:
-    """Pinocchio's model of the whole URDF; RobotModelError with urdfdom's first reason."""
-    try:
-        ET.fromstring(xml)
-    except ET.ParseError as exc:
-        raise RobotModelError(f"the URDF is not valid XML: {exc}") from None
+    """Pinocchio's model of the whole URDF once :func:`check_urdf` has passed it;
+    RobotModelError with the check's or urdfdom's first reason."""
+    check_urdf(xml)
+    return _pinocchio_model(xml)
+
+
+def _pinocchio_model(xml: str) -> pin.Model:
+    """Pinocchio's model of a URDF :func:`check_urdf` has passed (urdfdom's first reason if
+    it refuses it)."""
     with _captured_stderr() as errors:
         try:
             model = pin.buildModelFromXML(xml)
@@ -401,9 +625,10 @@ def load_chain(robot_description: str, urdf_file: str, base_link: str, tip_link:
     if the tool has a ``tcp``.
     """
     xml = urdf_text(robot_description, urdf_file)
+    root = check_urdf(xml)
     if tool is not None:
         xml = _with_tool(xml, base_link, tip_link, tool) or xml
-    full = parse_urdf(xml)
+    full = _pinocchio_model(xml)
     base = _body_frame(full, base_link, "base_link")
     tip = _body_frame(full, tip_link, "tip_link")
     to_base, to_tip = _supporting_joints(full, base), _supporting_joints(full, tip)
@@ -427,6 +652,7 @@ def load_chain(robot_description: str, urdf_file: str, base_link: str, tip_link:
     if gravity is not None:
         model.gravity = pin.Motion(np.asarray(gravity, dtype=float), np.zeros(3))
     names = tuple(model.names[1:])
+    _check_chain_joints(root, names)
     _check_inertia(model, names)
     kinds = tuple(JOINT_KINDS[model.joints[j].shortname()] for j in range(1, model.njoints))
     if tool is not None and not model.existFrame(TOOL_LINK, pin.BODY):

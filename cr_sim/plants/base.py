@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.parameters import Bound, Param
+from cr_control.models.brake import brake_torque, stop_position
 
 
 @dataclass
@@ -107,10 +108,10 @@ class Plant(ABC):
     #: The frame the measured wrench is in (the published frame_id): the thesis plants'
     #: world frame; urdf_surface's base link or wrist-sensor link.
     wrench_frame: str = "world"
-    #: Safe stop (brakes): viscous damping K_d (N m s/rad) of tau = G(q) - K_d q' - K_p (q - q_stop).
-    brake_damping: float = 30.0
-    #: Safe stop: holding stiffness K_p (N m/rad) about the position where braking began.
-    brake_stiffness: float = 1000.0
+    #: Safe stop (brakes) of effort plants: natural frequency w_b (rad/s) of
+    #: tau = G(q) - M(q) (2 w_b q' + w_b^2 (q - q_stop)) (:mod:`cr_control.models.brake`);
+    #: the plant node sets it from its parameter ``brake_frequency``.
+    brake_frequency: float = 50.0
 
     #: Force reflex (issue 20): the plant node safe-stops the plant when
     #: :meth:`contact_force_magnitude` exceeds this (N); scenarios set it from their
@@ -150,6 +151,13 @@ class Plant(ABC):
         """Values of ``sensor_fields`` now."""
         return []
 
+    def state_is_finite(self) -> bool:
+        """Whether every value of the true state is finite (a sum: a state whose values add up
+        beyond 1e308 counts as non-finite too). The plant node checks it after every step and
+        stops at the first non-finite state: no brake can act on it, and nothing non-finite
+        may leave the plant. Called every cycle: keep it cheap."""
+        return math.isfinite(self._x.sum())
+
     def accept(self, command: np.ndarray) -> bool:
         """True if ``command`` has one finite value per commanded joint (never NaN in)."""
         return command.shape == (len(self.command_joints),) and bool(np.all(np.isfinite(command)))
@@ -168,6 +176,18 @@ class Plant(ABC):
         pick = lambda values: np.array([float(values[i]) for i in idx])  # noqa: E731
         return JointLimits(pick(model.effortLimit), pick(model.velocityLimit),
                            pick(model.lowerPositionLimit), pick(model.upperPositionLimit))
+
+    def brake_inertia(self, q: np.ndarray) -> np.ndarray:
+        """M(q) of the commanded joints (positions ``q`` in ``joint_names`` order), which the
+        brakes of an effort plant scale by: ``self.mass_matrix(q)`` or ``self.arm.mass_matrix(q)``
+        (override where the commanded joints are not those). NotImplementedError if the plant
+        has neither: an effort plant must say how heavy its joints are to be braked."""
+        mass_matrix = getattr(self, "mass_matrix", None)
+        if not callable(mass_matrix):
+            mass_matrix = getattr(getattr(self, "arm", None), "mass_matrix", None)
+        if not callable(mass_matrix):
+            raise NotImplementedError(f"{type(self).__name__} has no mass matrix to brake with")
+        return np.asarray(mass_matrix(np.asarray(q, dtype=float)), dtype=float)
 
     def gravity_torque(self, q: np.ndarray) -> np.ndarray | None:
         """G(q) if the plant knows it (``self.gravity(q)`` or ``self.arm.gravity(q)``), else None."""
@@ -211,14 +231,29 @@ class Plant(ABC):
         the position where braking began."""
         return None
 
+    def brake_stop_position(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Where the brakes hold the commanded joints braking from (q, q'):
+        q + q'/w_b (:func:`cr_control.models.brake.stop_position`: each joint's speed then
+        falls as e^{-w_b t}), clipped into the joints' position limits."""
+        limits = self.joint_limits()
+        lower, upper = np.asarray(limits.lower, dtype=float), np.asarray(limits.upper, dtype=float)
+        target = stop_position(q, v, self.brake_frequency)
+        inside = lower <= upper                      # checked limits (load_chain); else unclipped
+        target[inside] = np.clip(target[inside], lower[inside], upper[inside])
+        return target
+
     def begin_safe_stop(self) -> None:
-        """Engage the brakes: remember where the joints are, to hold them there. Position
-        plants with a :meth:`contact_free_position` start retracting the command (from the
-        held one) to it instead, at the URDF's velocity limit (else ``retract_speed``)."""
-        self._brake_hold = self.measurement().position.copy()
+        """Engage the brakes. Effort plants: remember where the brakes bring the joints to
+        rest (:meth:`brake_stop_position` from the measured state), to hold them there.
+        Position plants hold the position where braking began, or, with a
+        :meth:`contact_free_position`, start retracting the command (from the held one) to
+        it, at the URDF's velocity limit (else ``retract_speed``)."""
+        m = self.measurement()
         self._retract = None
         if self.command_interface != "position":
+            self._brake_hold = self.brake_stop_position(m.position, m.velocity)
             return
+        self._brake_hold = m.position.copy()
         target = self.contact_free_position()
         if target is None:
             return
@@ -239,11 +274,16 @@ class Plant(ABC):
     def safe_stop_command(self) -> np.ndarray:
         """The braking command while in safe stop, from the measured state. Effort plants:
 
-            tau = G(q) - K_d q' - K_p (q - q_stop)
+            tau = G(q) - M(q) (2 w_b q' + w_b^2 (q - q_stop))
 
-        G(q) holds gravity (where the plant offers it), K_d = ``brake_damping`` brings the
-        joints to rest and K_p = ``brake_stiffness`` (0 = damping only) holds them where
-        braking began against contact forces, like a joint brake. Position plants cannot be
+        (:func:`cr_control.models.brake.brake_torque`): G(q) holds gravity (where the plant
+        offers it, :meth:`gravity_torque`), and every joint, scaled by the mass matrix
+        (:meth:`brake_inertia`), is a critically damped system of natural frequency
+        w_b = ``brake_frequency`` whatever its inertia, brought to rest at q_stop
+        (:meth:`brake_stop_position`: q + q'/w_b when braking began) with its speed falling
+        as e^{-w_b t}, and held there against contact forces, like a joint brake. Held for
+        a period dt it is stable and never alternates for w_b dt <= 0.5 (the plant node asks
+        at most :data:`cr_control.models.brake.MAX_BRAKE_STEP`). Position plants cannot be
         braked with torques: they retract the command to :meth:`contact_free_position` and
         hold it there (:meth:`retract_command`), or hold the position where braking began if
         the plant names none. Override for plants that brake differently.
@@ -252,12 +292,11 @@ class Plant(ABC):
             return self.retract_command()
         m = self.measurement()
         q, v = m.position, m.velocity
-        hold = self._brake_hold if self._brake_hold is not None else q
         if self.command_interface == "position":
-            return hold.copy()
-        tau = -self.brake_damping * v - self.brake_stiffness * (q - hold)
-        gravity = self.gravity_torque(q)
-        return tau + gravity if gravity is not None else tau
+            return (self._brake_hold if self._brake_hold is not None else q).copy()
+        hold = self._brake_hold if self._brake_hold is not None else self.brake_stop_position(q, v)
+        return brake_torque(self.brake_inertia(q), self.gravity_torque(q), q, v, hold,
+                            self.brake_frequency)
 
     def describe_safe_stop(self) -> str:
         """The brakes in words, for the plant node's log line when a safe stop begins."""
@@ -268,8 +307,9 @@ class Plant(ABC):
             return (f"retracting the command from {[round(x, 4) for x in start]} to the "
                     f"contact-free position {[round(x, 4) for x in target]} at "
                     f"{[round(v, 4) for v in speeds]} per s, then holding it")
-        return (f"gravity held, damping {self.brake_damping:g} N m s/rad, holding stiffness "
-                f"{self.brake_stiffness:g} N m/rad")
+        w = self.brake_frequency
+        return (f"gravity held, joints braked at w_b = {w:g} rad/s, scaled by the mass matrix "
+                f"(every joint's speed falls as e^(-{w:g} t)), and held where they come to rest")
 
 
 class CommandLimiter:

@@ -112,12 +112,17 @@ class CMMSD(LTIPlant):
         self.joint_names = tuple(f"q{i + 1}" for i in range(n))
         super().__init__(A, B, x0, np.zeros(n))
         self._n = n
+        self._mass = _per(values, "mass", n)
         self.max_contact_force = float(values["max_contact_force"])
         self._noise = values["position_noise_std"]
         self._rng = np.random.default_rng(values["noise_seed"])
 
     def joint_limits(self) -> JointLimits:
         return JointLimits.unlimited(self._n)
+
+    def mass_matrix(self, q: np.ndarray | None = None) -> np.ndarray:
+        """M = diag(m_1, ..., m_n) (kg), whatever the positions: what the brakes scale by."""
+        return np.diag(self._mass)
 
     def contact_force_magnitude(self) -> float:
         """The measured wrench's force, always 0 (no contact; no draw from the noise)."""

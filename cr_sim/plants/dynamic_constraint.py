@@ -31,7 +31,7 @@ its own) to the contact-free position and stays there: the lowest of the zero-fo
 equilibrium (``equilibrium(values, 0)``: delta = 0), the position where f = 0 for the
 constraint's state when braking begins (delta - f_raw / (k_o + k_s)) and the held command
 (never back toward the surface). The second term is the brakes' damping K_d
-(``brake_damping``, here N s/m) acting through the servo's stiffness k: the end effector's
+(this scenario's ``brake_damping``, N s/m) acting through the servo's stiffness k: the end effector's
 own loop is damped at zeta ~ 0.02 and the constraint at ~0.01, so a plain hold lets the
 pair ring (after the MRAC divergence trips the reflex at 5 N, held positions see the force
 come back at 12-40 N within 35 s; with the damping it peaks 1.1 % above the trip value
@@ -87,6 +87,10 @@ PARAMETERS = [
           "to the contact-free position (the position interface has no velocity limit of its "
           "own); ~1.5 x the fastest end-effector motion of the thesis runs (0.33 m/s).",
           "positive", read_only=True, bound=Bound.SPEED),
+    Param("brake_damping", 30.0, "Safe stop: damping K_d (N s/m) the retract adds through the "
+          "servo, delta_c = r(t) - (K_d / k) delta' (without it the lightly damped end effector "
+          "and constraint ring: the force came back at 12-40 N after the MRAC trip at 5 N).",
+          "positive", read_only=True, bound=Bound.DAMPING),
 ]
 
 
@@ -140,6 +144,8 @@ class DynamicConstraint(LTIPlant):
         self._k = values["end_effector_stiffness"]
         self.max_contact_force = float(values["max_contact_force"])
         self.retract_speed = float(values["retract_speed"])
+        #: K_d (N s/m) of the safe stop's damping through the servo (module docstring).
+        self.brake_damping = float(values["brake_damping"])
         self._c_list = [float(c) for c in self.C]
 
     def raw_force(self) -> float:

@@ -71,6 +71,7 @@ import pinocchio as pin
 from numba import njit
 
 from cr_control.core.parameters import Bound, Param, ParameterError
+from cr_control.models.brake import brake_torque
 from cr_sim.models.constrained_dynamics import (
     mechanism_dynamics_into,
     mechanism_work_size,
@@ -402,21 +403,30 @@ class FlexibleJointSurface(ConstrainedPlant):
         return out
 
     def describe_safe_stop(self) -> str:
-        return (f"motor brakes: spring torque compensated, damping {self.brake_damping:g} N m s/rad, "
-                f"holding stiffness {self.brake_stiffness:g} N m/rad")
+        w = self.brake_frequency
+        return (f"motor brakes: spring torque compensated, motors braked at w_b = {w:g} rad/s, "
+                f"scaled by their inertia (speeds falling as e^(-{w:g} t)), and held where they "
+                "come to rest")
+
+    def brake_inertia(self, q: np.ndarray) -> np.ndarray:
+        """diag(J_m): the motors' inertias, which the motor brakes scale by."""
+        return np.diag(self.motor_inertia)
 
     def begin_safe_stop(self) -> None:
-        """Engage the motor brakes: remember the measured motor positions."""
-        self._brake_hold = self.measurement().position[2:].copy()
+        """Engage the motor brakes: remember where the motors come to rest, q_m + q_m'/w_b
+        from the measured state (:meth:`~cr_sim.plants.base.Plant.brake_stop_position`)."""
+        m = self.measurement()
+        self._brake_hold = self.brake_stop_position(m.position[2:], m.velocity[2:])
 
     def safe_stop_command(self) -> np.ndarray:
         """Motor brakes, from the measured state: the spring torque compensated, the motors
-        damped to rest and held where braking began,
+        braked to rest (:func:`cr_control.models.brake.brake_torque` on J_m q_m'' = tau_m -
+        K_s (q_m - q_l)) and held there,
 
-            tau_m = K_s (q_m - q_l) - K_d q_m' - K_p (q_m - q_m,stop).
+            tau_m = K_s (q_m - q_l) - J_m (2 w_b q_m' + w_b^2 (q_m - q_m,stop)).
         """
         m = self.measurement()
         q_l, q_m, v_m = m.position[:2], m.position[2:], m.velocity[2:]
-        hold = self._brake_hold if self._brake_hold is not None else q_m
-        return (self.stiffness * (q_m - q_l) - self.brake_damping * v_m
-                - self.brake_stiffness * (q_m - hold))
+        hold = self._brake_hold if self._brake_hold is not None else self.brake_stop_position(q_m, v_m)
+        return brake_torque(self.brake_inertia(q_m), self.stiffness * (q_m - q_l), q_m, v_m, hold,
+                            self.brake_frequency)

@@ -196,6 +196,12 @@ class MovingObjectPlant(ConstrainedPlant):
         """G(q) of the three joints."""
         return pin.computeGeneralizedGravity(self.model, self.data, np.asarray(q, dtype=float))
 
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """M(q) of the three joints (the arm's two and the object's axis), symmetric: what the
+        brakes scale by."""
+        M = pin.crba(self.model, self.data, np.asarray(q, dtype=float))
+        return np.triu(M) + np.triu(M, 1).T
+
     def constraint_jacobian(self, q: np.ndarray) -> np.ndarray:
         """J_Phi(q) (3,): Phi' = J_Phi q'."""
         pin.computeJointJacobians(self.model, self.data, q)

@@ -139,6 +139,7 @@ import pinocchio as pin
 from numba import njit
 
 from cr_control.core.parameters import Bound, Param, ParameterError
+from cr_control.models.brake import brake_torque
 from cr_control.models.urdf import (
     CONTINUOUS,
     JOINT_FRICTION_EPSILON,
@@ -795,13 +796,17 @@ class URDFSurface(Plant):
                            limits.upper.copy())
 
     def begin_safe_stop(self) -> None:
-        """Engage the brakes: remember where the chain's joints are."""
-        self._brake_hold = self.measurement().position[:self._n].copy()
+        """Engage the brakes: remember where the chain's joints come to rest
+        (:meth:`~cr_sim.plants.base.Plant.brake_stop_position`, from the measured state)."""
+        m, n = self.measurement(), self._n
+        self._brake_hold = self.brake_stop_position(m.position[:n], m.velocity[:n])
 
     def safe_stop_command(self) -> np.ndarray:
         """The base class's brakes on the chain's joints (the locked ones take no command):
-        tau = G(q) - K_d q' - K_p (q - q_stop), without G(q) on a robot that adds it itself."""
+        tau = G(q) - M(q) (2 w_b q' + w_b^2 (q - q_stop)) with the chain's mass matrix
+        (tool included), without G(q) on a robot that adds it itself (:meth:`gravity_torque`)."""
         m, n = self.measurement(), self._n
         q, v = m.position[:n], m.velocity[:n]
-        hold = self._brake_hold if self._brake_hold is not None else q
-        return self.gravity_torque(q) - self.brake_damping * v - self.brake_stiffness * (q - hold)
+        hold = self._brake_hold if self._brake_hold is not None else self.brake_stop_position(q, v)
+        return brake_torque(self.mass_matrix(q), self.gravity_torque(q), q, v, hold,
+                            self.brake_frequency)

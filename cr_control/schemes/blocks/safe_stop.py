@@ -11,7 +11,9 @@ a joint-space PD scaled by the URDF's mass matrix M(q) (every joint a critically
 second-order system of natural frequency w_b = ``brake_frequency``, whatever its inertia:
 a damping fixed in N m s/rad that brakes the Panda's elbow would make its light wrist
 chatter, K_d dt / M_77 > 2), holding the joints near q_b, where braking began. G_b is the
-arm's and the tool's gravity where the robot does not add it itself, else zero.
+arm's and the tool's gravity where the robot does not add it itself, else zero. The law
+is :func:`cr_control.models.brake.brake_torque`, which the simulated robot's safe stop
+uses too.
 
 The start check finds a gravity setting that does not match the robot, or a grossly wrong
 model, in the controller's first ``start_check_time`` seconds: while the law holds the arm
@@ -31,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cr_control.core.parameters import Bound, Param
+from cr_control.models.brake import brake_torque
 
 #: The start check also stops a joint faster than this fraction of its URDF velocity limit.
 JOINT_SPEED_FRACTION = 0.5
@@ -98,9 +101,4 @@ def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.
     return Mismatch(f"{scheme}: {what}: {cause}. Braking until reactivated", holds)
 
 
-def brake_torque(M: np.ndarray, gravity: np.ndarray | None, q: np.ndarray, v: np.ndarray,
-                 hold: np.ndarray, frequency: float) -> np.ndarray:
-    """tau_b = G_b - M (2 w_b q' + w_b^2 (q - q_b)) (module docstring); ``gravity`` None: G_b = 0."""
-    w = frequency
-    tau = -M @ (2.0 * w * v + w * w * (q - hold))
-    return tau if gravity is None else tau + gravity
+__all__ = ["JOINT_SPEED_FRACTION", "PARAMETERS", "Mismatch", "brake_torque", "start_check"]
