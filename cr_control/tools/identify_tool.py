@@ -167,6 +167,9 @@ def identify_in_simulator(robot_name: str, settle: float, average: float,
     from cr_sim.plants.registry import make_plant
 
     r = robots.robot(robot_name)
+    if r.wrench != "wrist":
+        raise ValueError(f"{robot_name}'s wrench ({r.wrench}) does not carry the tool's weight: "
+                         f"identify on a wrist-sensor profile ({', '.join(wrist_profiles())})")
     values = robots.plant_values(r)
     scenario = values.pop("scenario")
     values = {**values, "surface": "none", **(plant_overrides or {})}
@@ -199,6 +202,11 @@ def identify_in_simulator(robot_name: str, settle: float, average: float,
     return estimate(np.array(g_s), np.array(wrenches)), values
 
 
+def wrist_profiles() -> list[str]:
+    """The robot profiles with a wrist force/torque sensor (what this tool identifies on)."""
+    return sorted(name for name, r in robots.ROBOTS.items() if r.wrench == "wrist")
+
+
 def params_file(node: str, frame: str, est: ToolEstimate, note: str) -> str:
     """The estimate as a ROS params file for the controller node ``node`` (YAML by
     ``yaml.safe_dump``: the node and frame are quoted as needed, the note one comment line)."""
@@ -214,7 +222,8 @@ def params_file(node: str, frame: str, est: ToolEstimate, note: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="cr_identify_tool", description=__doc__.split("\n\n")[0])
-    p.add_argument("--robot", default="panda", help=f"robot to simulate: {sorted(robots.ROBOTS)}")
+    p.add_argument("--robot", default="panda_ft", help=f"robot to simulate (a profile with a "
+                   f"wrist sensor): {wrist_profiles()}")
     p.add_argument("--node", default=SCHEME, help="controller node name in the params file")
     p.add_argument("--out", type=Path, default=Path("tool.yaml"), help="params file to write")
     p.add_argument("--settle", type=float, default=3.0, help="settling time per pose (s)")

@@ -515,6 +515,7 @@ class URDFSurface(Plant):
         #: The last accepted command; the same array as the held torque unless the robot adds
         #: its own compensation to it.
         self._held = np.zeros(n) if robot_side else self._tau
+        self._hold_with_robot_side()
 
     def _allocate(self) -> None:
         """The work array of the compiled glue (layout above) and the views of it the plant
@@ -652,14 +653,22 @@ class URDFSurface(Plant):
             raise ValueError(f"reset_state needs {n} positions and {n} velocities")
         self._x[:n], self._x[n:] = q0, v0
         self._fresh = self._sensed = False
+        if getattr(self, "_held", None) is not None:
+            self._hold_with_robot_side()
+
+    def _hold_with_robot_side(self) -> None:
+        """The held torque: the held command plus what the robot adds at the current state
+        (at start and after a reset too, so the sensors see the robot as it holds itself)."""
+        if self._held is not self._tau:
+            self._tau[:] = self._held + self.robot_torque()
+            self._fresh = self._sensed = False
 
     def step(self, command: np.ndarray, dt: float) -> None:
         """Advance by dt with the joint torques ``command`` held (a refused command keeps the
         last): substeps_for(dt) classical RK4 steps, the contact force at every stage."""
         command = np.asarray(command, dtype=np.float64)
         take_command(self._held, command if command.ndim == 1 else self._none)
-        if self._held is not self._tau:
-            self._tau[:] = self._held + self.robot_torque()
+        self._hold_with_robot_side()
         substeps = self.substeps_for(dt)
         model, data, tip, frame = self.model, self._data, self._tip, pin.LOCAL_WORLD_ALIGNED
         work, qp, vs, total, r = self._work, self._qp, self._vs, self._total, self._tip_r

@@ -129,7 +129,7 @@ class TaskSpaceController(Controller):
         own = {"joint_names": JOINT_NAMES, "max_effort": max_effort_on(
             next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model)}
         common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
-        return (common + cls.robot_parameters() + safe_stop.PARAMETERS + wrist_sensor.PARAMETERS
+        return (common + cls.robot_parameters() + safe_stop.parameters(thesis) + wrist_sensor.PARAMETERS
                 + cls.reference_parameters(model.m, thesis) + NULL_SPACE_PARAMETERS
                 + cls.law_parameters(model, thesis))
 

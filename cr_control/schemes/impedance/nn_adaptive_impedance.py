@@ -98,6 +98,11 @@ def nn_parameters(n: int, seed: list[float], null_space_model: bool) -> list[Par
               bound=Bound.JOINT),
         Param("publish_true_norms", True, "Publish |M_r|, |C_r|, |G_r| of the URDF's model beside "
               "the estimates (for plots only; not used in control).", "bool"),
+        Param("nn_warm_start", False, "Start the M_r and G_r networks at the URDF model's M_r, "
+              "G_r at rbf_seed (each weight vector the minimum-norm one giving them there) "
+              "instead of at zero as section 3.5.3 does; the law (3.76) and the weight laws "
+              "(3.79-3.81) are unchanged. On an arm of a few kilograms a zero M_r^ makes the "
+              "law's first second a bouncing transient on the table.", "bool", read_only=True),
         Param("null_space_model", null_space_model, "The orientation and posture tasks beside "
               "the law (arms with joints to spare) use the URDF's dynamics: a dynamically "
               "consistent projector and gravity, as an arm's own gravity compensation would; "
@@ -221,9 +226,21 @@ class NNAdaptiveImpedanceController(SlidingController):
         return {**self.values, "inv_variance": 1.0 / self.values["rbf_variance"]}
 
     def own_initial_state(self) -> np.ndarray:
-        m = self.model.m
-        return np.zeros(m * m * len(self.centres_q) + m * m * len(self.centres_qv)
-                        + m * len(self.centres_q))       # initial weights are zero
+        """The initial weights [theta_M, theta_C, theta_G]: zero (section 3.5.3), or with
+        ``nn_warm_start`` theta_M and theta_G such that M_r^(q_0) = M_r(q_0) and
+        G_r^(q_0) = G_r(q_0) of the URDF model at q_0 = rbf_seed: theta_i = xi_i(q_0)
+        y / |xi(q_0)|^2 for each output y (the minimum-norm weights)."""
+        m, n_q, n_qv = self.model.m, len(self.centres_q), len(self.centres_qv)
+        theta_M, theta_C, theta_G = np.zeros((n_q, m * m)), np.zeros(n_qv * m * m), np.zeros((n_q, m))
+        if self.values["nn_warm_start"]:
+            q0, zero = self._warm_q0, np.zeros(self.model.n)
+            true = task_model(self.values, model_free=False)
+            M_r, _, G_r = task_dynamics(true.chain, task_frame(
+                true.chain, true.task, self.values["singularity_mass"], q0, zero))
+            xi = rbf_network.activations(self.centres_q, 1.0 / self.values["rbf_variance"], q0)
+            share = xi / float(xi @ xi)
+            theta_M, theta_G = np.outer(share, M_r.ravel()), np.outer(share, G_r)
+        return np.concatenate([theta_M.ravel(), theta_C, theta_G.ravel()])
 
     def __init__(self, values: dict):
         for name in ("rbf_centres_per_dim", "rbf_max_nodes"):
@@ -239,6 +256,7 @@ class NNAdaptiveImpedanceController(SlidingController):
         self.centres_q = rbf_network.centres(low[:n], high[:n], per_dim, max_nodes)
         self.centres_qv = rbf_network.centres(low, high, per_dim, max_nodes)
         super().__init__(values)
+        self._warm_q0 = q_path[0]          # rbf_seed moved onto the desired motion's start
         self.true_model = task_model(self.values, model_free=False)
         self._norms_at = (len(self.status_fields) - 1 - len(self._law_fields)
                           + 2 * self.model.m + 1)
