@@ -1,4 +1,4 @@
-"""Ctrl-C ends every node within 2 s, also under parameter traffic (issue 25).
+"""Ctrl-C ends every node within 2 s, also under parameter traffic.
 
 A fuzz saw a plant take over 6 s to exit after SIGINT once in about 83 stops. Causes
 found (cr_control/nodes/spin.py, where the fixes are):
@@ -8,7 +8,8 @@ found (cr_control/nodes/spin.py, where the fixes are):
   (every process of a session stops at once; cr_param processes come and go): 1 of 120
   plant + controller stops under parameter traffic hung > 15 s (gdb: set_listener under
   rmw_destroy_node). A watchdog thread now ends such a process EXIT_DEADLINE_S after the
-  signal.
+  signal (spin.py's budget for Ctrl-C; the time allowed here is that budget plus
+  EXIT_MARGIN_S for the interpreter's exit).
 - waits for readers' acknowledgements ran to their full timeout after the signal: 2 s on
   the way out, and inside a callback (where no signal is handled) 2 s at the end of the
   plant's run, up to 10 s in a lockstep pacer; any reader that does not acknowledge (a
@@ -45,6 +46,7 @@ from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from ros_probe import RosProbe, next_domain
 
 from cr_control.core.ros_env import isolated_env
+from cr_control.nodes.spin import EXIT_DEADLINE_S, WATCHDOG_EXIT
 
 pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)
 
@@ -52,13 +54,18 @@ SCHEME = "adaptive_impedance"
 #: Plant + controller pairs stopped under parameter traffic, BATCH at a time.
 STOPS = 16
 BATCH = 2
-#: Every node is gone this long after its SIGINT.
-STOP_LIMIT_S = 2.0
+#: What comes after the node's budget (spin.EXIT_DEADLINE_S: torn down, or ended by its
+#: watchdog): the interpreter's own exit, on a loaded 2-core machine. Measured over 204
+#: stops here at a load average of 5-12: 0.22 s median, 0.53 s p99, 0.90 s at most.
+EXIT_MARGIN_S = 1.0
+#: Every node is gone this long after its SIGINT (2 s): a node that overruns its budget
+#: (a callback that never returns, a hung teardown, and no watchdog) fails here.
+STOP_LIMIT_S = EXIT_DEADLINE_S + EXIT_MARGIN_S
 #: A node still running this long after SIGINT is killed (and the test fails).
 KILL_AFTER_S = 15.0
 START_TIMEOUT_S = 90.0
-#: What spin.py's teardown watchdog says when it ends a process (see spin._exit_if_stuck).
-WATCHDOG_LINE = "the middleware's teardown did not finish"
+#: What spin.py's watchdog says when it ends a process (see spin._exit_if_stuck).
+WATCHDOG_LINE = WATCHDOG_EXIT
 
 
 def _double_array(name: str, values: list[float]) -> ParameterMsg:

@@ -20,15 +20,17 @@ shutdown coming from elsewhere (SIGTERM, ``rclpy.shutdown()``). On the way out e
 process waits (at most ``LAST_MESSAGES_TIMEOUT_S``) until its readers acknowledged its
 last messages, so a recorder a little behind still gets them.
 
-Ctrl-C ends a node within 2 s (issue 25: a plant under parameter traffic once took over
-6 s): the loop waits in slices of ``SPIN_SLICE_S`` (it waited 1 s, and a node with
-nothing to do noticed the signal only then), and after the signal every wait for
-readers, also one already under way (the plant's at the end of its run, 2 s; a lockstep
-pacer's, 10 s), ends ``INTERRUPTED_WAIT_S`` after it (before: up to 2 s in the callback,
-then up to 2 s more on the way out); a watchdog thread ends the process
-``EXIT_DEADLINE_S`` after the signal if the middleware's teardown hangs (a Fast DDS
+Ctrl-C ends a node within 2 s (a plant under parameter traffic once took over 6 s): the
+loop waits in slices of ``SPIN_SLICE_S`` (it waited 1 s, and a node with nothing to do
+noticed the signal only then), and after the signal every wait for readers, also one
+already under way (the plant's at the end of its run, 2 s; a lockstep pacer's, 10 s),
+ends ``INTERRUPTED_WAIT_S`` after it (before: up to 2 s in the callback, then up to 2 s
+more on the way out). ``EXIT_DEADLINE_S`` is the node's budget for all of it: a watchdog
+thread, woken by the signal itself, ends the process that long after the signal if the
+node has not stopped by then (a callback that does not return, or a Fast DDS
 participant-deletion hang, 1 in ~100 process stops under load: :func:`_exit_if_stuck`).
-test/test_sigint.py stops nodes under parameter traffic and holds them to it.
+The interpreter's own exit comes after that. test/test_sigint.py stops nodes under
+parameter traffic and holds them to ``EXIT_DEADLINE_S`` plus a stated margin for it.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from __future__ import annotations
 import gc
 import os
 import re
+import select
 import signal
 import sys
 import tempfile
@@ -215,21 +218,38 @@ INTERRUPTED_WAIT_S = 0.5
 #: :func:`wait_for_readers` waits in slices this long, so that a SIGINT can cut it short.
 _WAIT_SLICE_S = 0.05
 
-#: After Ctrl-C the process is gone at most this long after the signal, also when the
-#: middleware's teardown hangs (see :func:`_exit_if_stuck`); normally it is done ~0.6 s
-#: after the signal (wait for readers at most 0.5 s, nodes destroyed in 10-60 ms).
-EXIT_DEADLINE_S = 1.2
+#: The node's budget for Ctrl-C (s): this long after the signal arrives the node is torn
+#: down, or its watchdog ends the process (see :func:`_exit_if_stuck`), also when a
+#: callback does not return or the middleware's teardown hangs. The teardown is done
+#: 0.07 s after the signal (median), at most 0.56 s (a wait for readers that do not
+#: acknowledge ends 0.5 s after it; nodes are destroyed in 10-60 ms). The interpreter's
+#: own exit follows: 0.22 s median, at most 0.9 s on this 2-core machine at a load
+#: average of 5-12 (204 stops, test/test_sigint.py). So the process is gone within 2 s.
+EXIT_DEADLINE_S = 1.0
 
 #: At an end without Ctrl-C, the teardown after the wait for readers gets this long.
 TEARDOWN_TIMEOUT_S = 1.0
 
 
-def _exit_if_stuck(torn_down: threading.Event, deadline: float, names: str) -> None:
-    """Watchdog thread of :func:`spin_nodes`' teardown: end the process (status 0, the
-    nodes' status on Ctrl-C, after one line on stderr) if the teardown is not done by
-    ``deadline``, or EXIT_DEADLINE_S after a SIGINT, whichever comes first.
+#: What :func:`_exit_if_stuck` says when it ends a process.
+WATCHDOG_EXIT = "exiting without a clean teardown"
 
-    Why (issue 25, a plant that took over 6 s to exit): Fast DDS 2.14 can hang for good
+
+def _exit_if_stuck(torn_down: threading.Event, teardown_deadline: list[float | None], wake: int,
+                   names: str) -> None:
+    """Watchdog thread of :func:`spin_nodes`: end the process (status 0, the nodes' status
+    on Ctrl-C, after one line on stderr) EXIT_DEADLINE_S after a SIGINT arrived, or at
+    ``teardown_deadline[0]`` (set when the loop ends without Ctrl-C), whichever comes
+    first, unless ``torn_down`` is set by then.
+
+    It blocks on ``wake``, the read end of the pipe that :func:`signal.set_wakeup_fd`
+    writes the signal's number to the moment the signal arrives, also while the main
+    thread is stuck where no Python signal handler runs; :func:`spin_nodes` writes a zero
+    byte to it when the loop ends and when the teardown is done. So the budget counts from
+    the signal, as the one pressing Ctrl-C (and test/test_sigint.py) does, and the thread
+    costs nothing while the loop runs.
+
+    Why (a plant that took over 6 s to exit): Fast DDS 2.14 can hang for good
     in rmw_destroy_node, when the last node of the process deletes its DDS participant:
     DomainParticipant::set_listener(nullptr) waits for the participant listener's
     callbacks in progress and spins holding the listener mutex, while a discovery
@@ -244,18 +264,33 @@ def _exit_if_stuck(torn_down: threading.Event, deadline: float, names: str) -> N
         if os.sched_getscheduler(0) == os.SCHED_FIFO:   # and hold every CPU: be ahead of them
             priority = os.sched_getparam(0).sched_priority
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(min(priority + 1, 99)))
-    while not torn_down.wait(0.05):
-        now = time.monotonic()
-        if now < deadline and (_interrupted_at is None or now < _interrupted_at + EXIT_DEADLINE_S):
-            continue
-        with suppress(Exception):
-            sys.stdout.flush()
-            since = ("in time" if _interrupted_at is None else
-                     f"{now - _interrupted_at:.1f} s after Ctrl-C")
-            sys.stderr.write(f"{names}: the middleware's teardown did not finish {since} (a known "
-                             "Fast DDS hang when a peer leaves at the same moment): exiting without it\n")
-            sys.stderr.flush()
-        os._exit(0)
+    signalled_at: float | None = None
+    try:
+        while not torn_down.is_set():
+            ends = [t for t in (teardown_deadline[0],
+                                None if signalled_at is None else signalled_at + EXIT_DEADLINE_S)
+                    if t is not None]
+            now = time.monotonic()
+            if ends and now >= min(ends):
+                break
+            ready, _, _ = select.select([wake], [], [], min(ends) - now if ends else None)
+            if ready:
+                with suppress(BlockingIOError):
+                    if signal.SIGINT in os.read(wake, 512) and signalled_at is None:
+                        signalled_at = time.monotonic()
+        else:
+            return
+    finally:
+        if torn_down.is_set():
+            os.close(wake)
+    with suppress(Exception):
+        sys.stdout.flush()
+        since = "in time" if signalled_at is None else f"{now - signalled_at:.1f} s after Ctrl-C"
+        why = ("the middleware's teardown did not finish (a known Fast DDS hang when a peer leaves "
+               "at the same moment)" if teardown_deadline[0] is not None else "a callback did not return")
+        sys.stderr.write(f"{names}: {WATCHDOG_EXIT} {since}: {why}\n")
+        sys.stderr.flush()
+    os._exit(0)
 
 
 def _on_first_interrupt(signum: int, frame: Any) -> None:
@@ -322,6 +357,21 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
     _interrupted_at = None
     in_main = threading.current_thread() is threading.main_thread()   # signals only there
     previous = signal.signal(signal.SIGINT, _on_first_interrupt) if in_main else None
+    torn_down = threading.Event()
+    teardown_deadline: list[float | None] = [None]
+    if in_main:
+        wake, wake_write = os.pipe()
+        os.set_blocking(wake, False)
+        os.set_blocking(wake_write, False)
+        previous_wakeup = signal.set_wakeup_fd(wake_write, warn_on_full_buffer=False)
+        threading.Thread(target=_exit_if_stuck, name="cr_exit_watchdog", daemon=True,
+                         args=(torn_down, teardown_deadline, wake,
+                               ", ".join(node.get_name() for node in nodes))).start()
+
+    def rouse() -> None:
+        if in_main:
+            with suppress(OSError):
+                os.write(wake_write, b"\0")
     try:
         # Without a timeout, EventsExecutor's spin() and spin_until_future_complete()
         # never deliver anything here (rclpy 7.1.6): wait in bounded slices instead.
@@ -337,11 +387,8 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
     finally:
         # Our SIGINT handler stays until the end: a Ctrl-C during the teardown shortens it
         # (and is no KeyboardInterrupt traceback).
-        torn_down = threading.Event()
-        if in_main:
-            threading.Thread(target=_exit_if_stuck, name="cr_exit_watchdog", daemon=True,
-                             args=(torn_down, time.monotonic() + LAST_MESSAGES_TIMEOUT_S + TEARDOWN_TIMEOUT_S,
-                                   ", ".join(node.get_name() for node in nodes))).start()
+        teardown_deadline[0] = time.monotonic() + LAST_MESSAGES_TIMEOUT_S + TEARDOWN_TIMEOUT_S
+        rouse()
         try:
             executor.shutdown()
             if rclpy.ok():
@@ -351,5 +398,8 @@ def spin_nodes(nodes: Sequence[Node], until: Future | None = None) -> None:
             rclpy.try_shutdown()
         finally:
             torn_down.set()
+            rouse()
             if in_main:
+                signal.set_wakeup_fd(previous_wakeup)
+                os.close(wake_write)
                 signal.signal(signal.SIGINT, previous)
