@@ -1,5 +1,5 @@
-"""Your robot (issue 20, item 8): a controller drives a stand-in for a ros2_control robot
-that speaks exactly the topics of README "Your robot".
+"""Your robot: a controller drives a stand-in for a ros2_control robot that speaks exactly
+the topics of docs/any_robot.md, "Your robot over ros2_control".
 
 The stand-in (a node in this process) owns the simulated Panda of the wiping task and
 behaves like joint_state_broadcaster (/joint_states: all 9 joints, fingers first, arm
