@@ -61,7 +61,9 @@ def test_thesis_arm_through_the_generic_path_gives_the_thesis_numbers(scheme):
 def panda():
     r = robots.robot("panda")
     scheme = "adaptive_impedance"
-    values = controller_class(scheme).robot_values(robots.controller_values(r, scheme))
+    # the model with gravity (the profile's robot compensates its own: its controllers' have none)
+    values = controller_class(scheme).robot_values({**robots.controller_values(r, scheme),
+                                                    "robot_compensates_gravity": False})
     model = task_model(values)
     chain = load_chain("", r.urdf_file, r.base_link, r.tip_link, np.array(robots.GRAVITY))
     return model, chain, np.array(r.home)

@@ -11,7 +11,8 @@ Runs, one after another, each on a ROS_DOMAIN_ID of its own (localhost discovery
    recording the echo pair's topics;
 4. the same on the Panda (``cr_session --robot panda``: 9 joints in /joint_states, 7
    commanded, 3-D status and reference) against the echo pair carrying messages of the
-   Panda's shape, with the same recorder (issue 20: real time at 7 joints);
+   Panda's shape, with the same recorder (real time at 7 joints), and on the UR5 at
+   ur_robot_driver's 500 Hz (``--robot ur5``, 6 joints) against an echo pair at 500 Hz;
 5. the recorder alone under a synthetic load (a recorded session's 1 kHz topics): its
    CPU per message, and whether it lost any;
 6. lockstep sessions (across processes and composed) and the offline loop (no ROS):
@@ -225,6 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skip-recorder", action="store_true",
                    help="no runs with the recorder (the recorder and panda layouts), no recorder load")
     p.add_argument("--skip-panda", action="store_true", help="no Panda session and its echo pair")
+    p.add_argument("--skip-ur5", action="store_true", help="no UR5 session (500 Hz) and its echo pair")
     p.add_argument("--only", action="append", choices=[lay.name for lay in LAYOUTS], metavar="LAYOUT",
                    help="run only this real-time layout's session/echo pairs (repeatable; of "
                         f"{', '.join(lay.name for lay in LAYOUTS)}): no recorder load, lockstep, "
@@ -262,7 +264,8 @@ def main(argv: list[str] | None = None) -> int:
         print("cr_benchmark: --only and --only-recorder-load exclude each other", file=sys.stderr)
         return 2
     skipped = [name for name, on in (("composed", args.skip_composed), ("recorder", args.skip_recorder),
-                                     ("panda", args.skip_recorder or args.skip_panda)) if on]
+                                     ("panda", args.skip_recorder or args.skip_panda),
+                                     ("ur5", args.skip_recorder or args.skip_ur5)) if on]
     layouts = [] if args.only_recorder_load else select_layouts(args.only, skipped)
     if args.only and not layouts:
         print(f"cr_benchmark: --only {' '.join(args.only)}: every one of them is skipped", file=sys.stderr)

@@ -82,13 +82,18 @@ class Layout:
 #: The real-time layouts, in the order they run. The Panda publishes 9 joints (7 arm + 2
 #: locked fingers, :mod:`cr_control.tools.robots`) and is commanded 7: the echo pair carries
 #: messages of that shape, with the recorder as beside the thesis arm; issue 20 (item 7)
-#: asks for issue 6's recorder targets and the controller's compute p50 <= 100 us there.
+#: asks for issue 6's recorder targets and the controller's compute p50 <= 100 us there. The
+#: UR5 runs at ur_robot_driver's 500 Hz (6 joints), its echo pair at the same rate.
 LAYOUTS = (
     Layout("processes", "session processes", "echo processes"),
     Layout("composed", "session composed", "echo composed", composed=True),
     Layout("recorder", "session + recorder", "echo + recorder", record=True),
     Layout("panda", "session panda + recorder", "echo panda + recorder", record=True, robot="panda",
            echo_args=("--joints", "9", "--command-joints", "7", "--joint-prefix", "panda_"),
+           rules="recorder", compute_p50_us=100.0),
+    Layout("ur5", "session ur5 @ 500 Hz + recorder", "echo ur5 @ 500 Hz + recorder", record=True,
+           robot="ur5", echo_args=("--joints", "6", "--command-joints", "6", "--joint-prefix",
+                                   "ur5_", "--rate", "500"),
            rules="recorder", compute_p50_us=100.0),
 )
 
