@@ -17,8 +17,11 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from cr_control.core import topics
 from cr_control.core.ros_env import DOMAIN_SPAN, FIRST_DOMAIN
 from cr_control.tools import benchmark as bm
-from cr_control.tools import echo_pair
+from cr_control.tools import echo_pair, robots
 from cr_control.tools.echo_pair import parse_result
+
+#: The Panda layout's echo pair messages (9 joints, 7 commanded).
+PANDA_ECHO_ARGS = next(lay for lay in bm.LAYOUTS if lay.name == "panda").echo_args
 
 # /proc/<pid>/stat of a process whose name holds a space and a parenthesis.
 STAT = ("4242 (python (x) 3) S 1 4242 4242 0 -1 4194560 5000 0 0 0 "
@@ -128,7 +131,7 @@ def test_json_safe_and_domain_ids():
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize("shape", [(), bm.LAYOUTS[-1].echo_args], ids=["2 joints", "panda"])
+@pytest.mark.parametrize("shape", [(), PANDA_ECHO_ARGS], ids=["2 joints", "panda"])
 def test_echo_pair_one_process_produces_cycles(ros_env, shape):
     proc = subprocess.run([sys.executable, "-m", "cr_control.tools.echo_pair", "both", "--duration", "1",
                            *shape], env=ros_env, capture_output=True, text=True, timeout=60)
@@ -410,11 +413,12 @@ PANDA = next(lay for lay in bm.LAYOUTS if lay.name == "panda")
 
 def test_layouts_selected_by_only_and_skip_in_their_order():
     names = [lay.name for lay in bm.LAYOUTS]
-    assert names == ["processes", "composed", "recorder", "panda"]
+    assert names == ["processes", "composed", "recorder", "panda", "ur5"]
     assert [lay.name for lay in bm.select_layouts()] == names
     assert bm.select_layouts(["panda"]) == [PANDA]
     assert [lay.name for lay in bm.select_layouts(["panda", "processes"])] == ["processes", "panda"]
-    assert [lay.name for lay in bm.select_layouts(None, ["composed", "panda"])] == ["processes", "recorder"]
+    assert [lay.name for lay in bm.select_layouts(None, ["composed", "panda", "ur5"])] == [
+        "processes", "recorder"]
     assert bm.select_layouts(["panda"], ["panda"]) == []
     # The existing layouts keep their titles (README tables, the reference run's JSON keys).
     assert [(lay.session_title, lay.echo_title) for lay in bm.LAYOUTS[:3]] == [
@@ -422,6 +426,10 @@ def test_layouts_selected_by_only_and_skip_in_their_order():
         ("session + recorder", "echo + recorder")]
     assert PANDA.robot == "panda" and PANDA.record and not PANDA.composed
     assert PANDA.session_title.startswith("session")  # its repeats are printed (format_repeats)
+    # the UR5 at ur_robot_driver's 500 Hz: its echo pair at the same rate and shape
+    ur5 = next(lay for lay in bm.LAYOUTS if lay.name == "ur5")
+    assert ur5.robot == "ur5" and ur5.record and "--rate" in ur5.echo_args
+    assert float(ur5.echo_args[ur5.echo_args.index("--rate") + 1]) == robots.robot("ur5").rate_hz
 
 
 def test_panda_targets_are_the_recorders_plus_compute_p50():
@@ -514,4 +522,4 @@ def test_layout_flags_refused_in_one_line_before_any_run(capsys):
     only = bm.build_parser().parse_args(["--only", "panda", "--only", "composed"]).only
     assert only == ["panda", "composed"]
     with pytest.raises(SystemExit):
-        bm.build_parser().parse_args(["--only", "ur5"])
+        bm.build_parser().parse_args(["--only", "kuka"])
