@@ -23,7 +23,7 @@ from cr_control.analysis import analyze, robot
 from cr_control.tools import robots
 from cr_control.tools.offline import run_scheme
 
-SCHEME, ROBOT, DURATION = "impedance", "panda", 1.5
+SCHEME, ROBOT, DURATION = "impedance", "panda_ft", 1.5
 ROBOT_METRICS = ("normal_force_mean_last_half_N", "normal_force_err_rms_last_half_N",
                  "path_err_rms_last_half_m", "path_err_max_last_half_m", "contact_lost_s",
                  "orientation_err_max_deg", "posture_err_max_rad", "singularity_damping_max")

@@ -26,7 +26,7 @@ pytestmark = [pytest.mark.ros, needs_erd]
 def test_identification_through_the_topics(tmp_path, ros_env):
     env = {k: v for k, v in ros_env.items() if k != "ROS_DOMAIN_ID"}   # the session takes one
     session = subprocess.Popen(
-        [sys.executable, "-m", "cr_control.tools.session", "--robot", "panda", "--mode",
+        [sys.executable, "-m", "cr_control.tools.session", "--robot", "panda_ft", "--mode",
          "lockstep", "--duration", "40", "--no-analysis", "--no-record", "--out", str(tmp_path),
          "-p", "plant.surface=none", "-p", "adaptive_impedance.approach_speed=0.0"], env=env,
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT,

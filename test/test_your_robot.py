@@ -15,7 +15,7 @@ controller is the ``adaptive_impedance`` executable with the Panda's params file
 
 - every array has 7 finite values and, mapped by the forward controller's joint order,
   equals the controller's /joint_commands efforts of the same cycle (same stamp);
-- 2 s of the closed loop reproduce the offline loop (``run_scheme(..., robot="panda")``):
+- 2 s of the closed loop reproduce the offline loop (``run_scheme(..., robot="panda_ft")``):
   same plant, same law, same stamps (integer nanoseconds), float64 carried losslessly, so
   the same floating-point operations: states, forces and torques agree bit for bit (0
   measured; asserted to 1e-12). Anything a lost or reordered message changes is far above
@@ -166,7 +166,7 @@ def probe(ros_env):
 
 
 def test_a_controller_drives_a_ros2_control_robot(ros_env, probe):
-    r = robots.robot("panda")
+    r = robots.robot("panda_ft")
     values = {k: v for k, v in robots.plant_values(r).items() if k != "scenario"}
     robot = StandInRobot(probe.node, make_plant("urdf_surface", values))
     executable = Path(sys.executable).with_name("adaptive_impedance")
@@ -218,7 +218,7 @@ def test_a_controller_drives_a_ros2_control_robot(ros_env, probe):
     assert np.abs(arrays).max() > 1.0          # real torques (gravity alone is tens of N m)
 
     # the closed loop is the offline loop, stamp for stamp
-    reference = run_scheme("adaptive_impedance", CYCLES * PERIOD, robot="panda")
+    reference = run_scheme("adaptive_impedance", CYCLES * PERIOD, robot="panda_ft")
     loop = robot.rows[:CYCLES]
     t = np.array([m.time for _, m, _ in loop])
     q = np.array([m.position for _, m, _ in loop])

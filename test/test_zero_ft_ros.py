@@ -32,10 +32,10 @@ SERVICE = "/adaptive_impedance/zero_ft"
 
 
 def test_zero_ft_service(ros_env):
-    r = robots.robot("panda")
+    r = robots.robot("panda_ft")
     values = {k: v for k, v in robots.plant_values(r).items() if k != "scenario"}
     plant = make_plant("urdf_surface", {**values, "surface": "none", "ft_noise_std": [0.0, 0.0]})
-    plant.step(plant.gravity(np.array(r.home)), 1e-9)          # held: at rest
+    plant.step(plant.gravity_torque(np.array(r.home)), 1e-9)          # held: at rest
     m = plant.measurement()
     probe = RosProbe(int(ros_env["ROS_DOMAIN_ID"]), name="zero_ft_probe")
     executable = Path(sys.executable).with_name("adaptive_impedance")
