@@ -58,7 +58,11 @@ Guards (issue 25; counted in the status, :data:`cr_control.core.topics.NODE_STAT
 Wrist sensor (issue 24, task-space schemes): the wrench's force and torque (sensor frame)
 go to the law, which compensates them (:mod:`cr_control.schemes.blocks.wrist_sensor`);
 ``~/zero_ft`` (std_srvs/Trigger) starts zeroing the sensor's bias, or refuses with the
-reason (no wrench yet, moving, in contact, a zeroing under way).
+reason (no wrench yet, moving, in contact, a zeroing under way, a bias farther than
+``zero_ft_max_change`` from the first one); ``~/zero_ft_force`` (std_srvs/Trigger) zeroes
+with the operator vouching that the tool touches nothing (no contact or distance checks;
+its bias becomes the first one). Refusals are logged at most one line every 5 s, with a
+count; every call gets its reason in the response.
 - A failing law: while :attr:`Controller.commanding` is False (its output failed for more
   than ``max_bad_cycles`` cycles in a row, or a failed start check) a scheme with a braking
   command publishes that every cycle (a real robot holds the last command forever); a
@@ -258,6 +262,8 @@ class ControllerNode(LifecycleNode):
                                      quiet_on_shutdown(self, self._on_target_wrench), TARGET_QOS)
         if hasattr(self.controller, "zero_ft"):            # task-space schemes: a wrist sensor
             self.create_service(Trigger, "~/zero_ft", quiet_on_shutdown(self, self._on_zero_ft))
+            self.create_service(Trigger, "~/zero_ft_force",
+                                quiet_on_shutdown(self, self._on_zero_ft_force))
         self.get_logger().info(
             f"{scheme}: {len(specs)} parameters, commanding {self.joint_names} "
             f"({self.controller.command_interface})"
@@ -470,30 +476,37 @@ class ControllerNode(LifecycleNode):
         if not self._target_usable(topics.TARGET_POSE_SUFFIX, msg.header.frame_id,
                                    position + quaternion):
             return
-        if not np.linalg.norm(quaternion) > 0.0:
+        if not np.max(np.abs(quaternion)) > 0.0:    # not its norm: 1e-200 squared is 0
             self.get_logger().warn("~/target_pose with a zero quaternion ignored (an "
                                    "orientation of [0, 0, 0, 1] means none)",
                                    throttle_duration_sec=5.0)
             return
+        # normalised without overflow, a position beyond the reach moved onto it (logged)
         self.controller.set_target_pose(np.array(position), np.array(quaternion))
 
     def _on_target_wrench(self, msg: WrenchStamped) -> None:
         f = msg.wrench.force
         force = [f.x, f.y, f.z]
         if self._target_usable(topics.TARGET_WRENCH_SUFFIX, msg.header.frame_id, force):
-            self.controller.set_target_wrench(np.array(force))
+            self.controller.set_target_wrench(np.array(force))   # above max_target_force: scaled
 
-    def _on_zero_ft(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        """~/zero_ft: start zeroing the wrist sensor (the controller judges whether it can)."""
+    def _on_zero_ft(self, request: Trigger.Request, response: Trigger.Response,
+                    force: bool = False) -> Trigger.Response:
+        """~/zero_ft: start zeroing the wrist sensor (the controller judges whether it can
+        and logs its refusals, rate-limited)."""
         if not self._wrench_seen:
-            response.success, response.message = False, f"no wrench on {topics.WRENCH} yet"
+            response.success, response.message = self.controller.zero_ft_refused(
+                f"no wrench on {topics.WRENCH} yet")
         else:
-            response.success, response.message = self.controller.zero_ft()
-        if response.success:     # one severity per call site (rclpy's logger insists)
-            self.get_logger().info(f"~/zero_ft: {response.message}")
-        else:
-            self.get_logger().warn(f"~/zero_ft: {response.message}")
+            response.success, response.message = self.controller.zero_ft(force)
+        if response.success:
+            self.get_logger().info(f"~/zero_ft{'_force' if force else ''}: {response.message}")
         return response
+
+    def _on_zero_ft_force(self, request: Trigger.Request,
+                          response: Trigger.Response) -> Trigger.Response:
+        """~/zero_ft_force: zero with the operator vouching the tool touches nothing."""
+        return self._on_zero_ft(request, response, force=True)
 
     def _joint_order(self, names: tuple[str, ...]) -> list[int] | None:
         """Indices of our state joints in a JointState's name list (None if any is missing)."""

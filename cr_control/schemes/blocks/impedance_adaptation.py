@@ -15,10 +15,29 @@ measured error (e_m(0) = e(0), e_m'(0) = e'(0)), so xi(0) = 0, and is advanced b
 classical RK4 step per cycle (exact to O(dt^5) for this linear system). The integrals use
 the rectangle rule with the dt of each cycle.
 
+Bounded c_hat (``c_hat_max``). The thesis bounds the true c = M_m^-1 (f_d + K_e (r_d -
+r_e)) (3.5) by the boundedness of f_d, r_e and r_d (section 3.2, after 3.33), but (3.11)
+bounds nothing: an error the law cannot remove (the tool held by an obstacle short of r_d,
+the force admittance at its limit) integrates into c_hat without end, and M_r c_hat is
+pressed against whatever holds the tool. With ``c_hat_max`` > 0 the integral part
+c_I = c_hat(0) - Q_c int(varpi) is kept in the box |c_I,i| <= c_hat_max by projection: after
+each step a component that left the box is put back on its face and int(varpi) is set to
+match (int = Q_c^-1 (c_hat(0) - c_I), Q_c being positive definite). This is the parameter
+projection of robust adaptive control (Ioannou and Sun, "Robust Adaptive Control",
+Prentice Hall 1996, section 4.4 and chapter 8; Krstic, Kanellakopoulos and Kokotovic,
+"Nonlinear and Adaptive Control Design", Wiley 1995, appendix E): clipping moves c_I
+towards every point of the box (for a diagonal Q_c, as every default, also in the
+Q_c^-1-weighted distance of the c term of (3.17)), so for a box that holds the c the task
+needs the projection never makes that term grow, and the estimate is bounded whatever
+happens. Inside the box nothing changes, bit for bit; 0 (the default on the thesis's arm)
+= no box: (3.11) as printed. A_hat and B_hat are left as printed:
+their integrands varpi e'^T and varpi e^T vanish with e' and grow only with e^2 while the
+tool is held (at 1 cm, 6e-4 s^-2 per second with the section 3.5.1 gains).
+
 The task has m position axes (2 on the thesis's planar arm, 3 on a spatial arm): every
 matrix is m x m. Compiled: :func:`impedance_update` works on the packed gains
-(:func:`gains_layout`: the twelve m x m matrices, then c_hat(0)) and internal state
-(:func:`state_layout`), whose offsets it computes from m.
+(:func:`gains_layout`: the twelve m x m matrices, then c_hat(0) and c_hat_max) and internal
+state (:func:`state_layout`), whose offsets it computes from m.
 """
 
 from __future__ import annotations
@@ -26,18 +45,23 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cr_control.core.linalg import matvec, tmatvec
+from cr_control.core.linalg import cholesky_into, cholesky_solve_into, matvec, tmatvec
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Bound, Param, matrix
 
-#: The m x m matrices of the packed gains, in order (c_hat_0 follows them).
+#: c_hat_max on any arm but the thesis's (m/s^2): above the 2.6 the robots' wiping task reaches
+#: (the NN scheme; the others 0.5), ~25 N of M_r c_hat on the Panda (M_r 4.9 kg along the
+#: table's normal at home) and ~18 N on the UR5 (3.5 kg).
+C_HAT_MAX = 5.0
+
+#: The m x m matrices of the packed gains, in order (c_hat_0 and c_hat_max follow them).
 MATRICES = ("A_m", "B_m", "P1", "P2", "A_hat_0", "B_hat_0", "Q_a", "Q_b", "Q_c", "Q_a_star",
             "Q_b_star", "Q_c_star")
 
 
 def gains_layout(m: int) -> Layout:
     """Packed impedance gains for m axes (names = parameter names)."""
-    return Layout(**dict.fromkeys(MATRICES, (m, m)), c_hat_0=m)
+    return Layout(**dict.fromkeys(MATRICES, (m, m)), c_hat_0=m, c_hat_max=1)
 
 
 def state_layout(m: int) -> Layout:
@@ -63,9 +87,9 @@ def estimates_slice(m: int) -> slice:
 
 def impedance_parameters(m: int, A_m: float, B_m: float, P1: float, P2: float, A0: float,
                          B0: float, c0: list[float], Q: float, Q_bc_star: float,
-                         Q_a_star: float | None = None) -> list[Param]:
+                         Q_a_star: float | None = None, c_max: float = 0.0) -> list[Param]:
     """Parameters of the impedance adaptation (3.8, 3.11-3.14) on m axes, thesis defaults
-    given by their diagonals."""
+    given by their diagonals; ``c_max`` the default of c_hat_max (0: none, the thesis)."""
     Q_a_star = Q if Q_a_star is None else Q_a_star
     return [
         Param("A_m", matrix(m, A_m), "Reference model damping A_m (3.8), positive definite.",
@@ -80,6 +104,12 @@ def impedance_parameters(m: int, A_m: float, B_m: float, P1: float, P2: float, A
               m, read_only=True, bound=Bound.GAIN),
         Param("c_hat_0", c0, "Initial impedance estimate c_hat(0) (3.11).", "vector", m,
               read_only=True, bound=Bound.GAIN),
+        Param("c_hat_max", c_max, "Box of c_hat's integral part c_hat(0) - Q_c int(varpi) "
+              "(3.11), per axis (m/s^2): kept in it by projection, so an error the law cannot "
+              "remove (the tool held short of r_d) does not wind c_hat up; M_r c_hat_max is the "
+              "most it then adds to the force. 0 = no box (3.11 as printed, the thesis's runs); "
+              f"{C_HAT_MAX:g} on any other arm (the robots' wiping task reaches 2.6 at most).",
+              "nonnegative", bound=Bound.GAIN),
         Param("Q_a", matrix(m, Q), "Integral adaptation gain of A_hat (3.12).", "spd", m, bound=Bound.GAIN),
         Param("Q_b", matrix(m, Q), "Integral adaptation gain of B_hat (3.13).", "spd", m, bound=Bound.GAIN),
         Param("Q_c", matrix(m, Q), "Integral adaptation gain of c_hat (3.11).", "spd", m, bound=Bound.GAIN),
@@ -143,6 +173,21 @@ def state_views(state, m):
 
 
 @njit(cache=True, error_model="numpy")
+def _project_c(Q_c, c_0, c_max, c_integral, integrals):
+    """Put c_I = c_hat(0) - Q_c int(varpi) back into the box |c_I,i| <= c_max and int(varpi)
+    (column 0 of ``integrals``) to match: int = Q_c^-1 (c_hat(0) - c_I) (module docstring)."""
+    m = c_0.shape[0]
+    for i in range(m):
+        c_integral[i] = min(max(c_integral[i], -c_max), c_max)
+    L = np.empty((m, m))
+    if not cholesky_into(Q_c, L):
+        return
+    solution = np.empty(m)
+    cholesky_solve_into(L, c_0 - c_integral, solution)
+    integrals[:, 0] = solution
+
+
+@njit(cache=True, error_model="numpy")
 def impedance_update(gains, state, e, e_dot, dt):
     """Advance the reference model and the integrals by dt and set A_hat, B_hat, c_hat, varpi
     in ``state`` for the measured e, e' (3.8, 3.11-3.14)."""
@@ -165,8 +210,12 @@ def impedance_update(gains, state, e, e_dot, dt):
             products[i, 1 + m + j] = varpi[i] * e[j]
         for j in range(1 + 2 * m):
             integrals[i, j] += products[i, j] * dt
-    c_hat[:] = (gains[12 * m * m:12 * m * m + m] - matvec(_mat(gains, 8, m), integrals[:, 0])
-                - matvec(_mat(gains, 11, m), varpi))
+    c_0, Q_c = gains[12 * m * m:12 * m * m + m], _mat(gains, 8, m)
+    c_integral = c_0 - matvec(Q_c, integrals[:, 0])
+    c_max = gains[12 * m * m + m]
+    if c_max > 0.0 and np.max(np.abs(c_integral)) > c_max:
+        _project_c(Q_c, c_0, c_max, c_integral, integrals)
+    c_hat[:] = c_integral - matvec(_mat(gains, 11, m), varpi)
     A_0, B_0 = _mat(gains, 4, m), _mat(gains, 5, m)
     Q_a, Q_b, Q_a_s, Q_b_s = _mat(gains, 6, m), _mat(gains, 7, m), _mat(gains, 9, m), _mat(gains, 10, m)
     for i in range(m):

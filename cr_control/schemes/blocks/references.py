@@ -16,13 +16,23 @@ Three sources, one after the other:
        r_d'' = w_f^2 (p_target - r_d) - 2 w_f r_d',
 
    started from the trajectory's r_d, r_d' at that moment, so a new target never jumps the
-   reference (Mayr's controller #5: "tries to move very fast on a new reference"). The desired
+   reference (Mayr's controller #5: "tries to move very fast on a new reference"). A far
+   target would still be approached fast (peak speed w_f d / e for a step d: 1.8 m/s for
+   1 m at w_f = 5 rad/s, above the Panda's 1.7 m/s Cartesian limit), so the filter is given
+   the target at most L = 2 v_max / w_f ahead of r_d (v_max = ``target_max_speed``): its
+   speed then rises to w_f L / 2 = v_max without overshoot and stays there until the target
+   is within L, where the filter ends critically damped as before (a step within L, and so
+   any streamed path slower than v_max, is followed exactly as without it). The desired
    orientation (the tip's orientation at the first state until a target arrives) follows
    the same filter on SO(3): w_d' = w_f^2 log(q_target q_d^-1) - 2 w_f w_d, q_d advanced by
    exp(w_d dt).
 3. The desired force f_d: ``desired_force``, or the latest ``~/target_wrench``, ramped in
    over ``force_ramp_time`` from the first state (a robot that starts touching the table
-   must not be kicked into it: the admittance below would start at (f_d - f)/m_a). A force
+   must not be kicked into it: the admittance below would start at (f_d - f)/m_a). The
+   first target wrench is taken as it comes, each later one approached at
+   ``target_force_rate`` N/s at most: a target flipping sign at every cycle (500 Hz on a
+   UR) drove the NN scheme on the UR5 into a limit cycle that outlived the flips (up to
+   74 N true, the tool then off the table); rate-limited it is a dither of rate x dt. A force
    admittance on the reference makes the position laws of chapter 3 (which regulate
    position, the force following from the environment: 3.5) hold a force: along
    n_f = f_d/|f_d| the reference is moved by delta,
@@ -30,7 +40,13 @@ Three sources, one after the other:
        m_a delta'' + d_a delta' = n_f^T (f_d - f),   r_d <- r_d - delta n_f  (and r_d', r_d''),
 
    |delta| <= ``force_admittance_limit``; off while ``force_admittance_damping`` is 0 (the
-   thesis runs). In steady contact n_f^T f = |f_d| whatever the surface's stiffness.
+   thesis runs). In steady contact n_f^T f = |f_d| whatever the surface's stiffness. When
+   f_d turns, the shift made, delta n_f, is kept as far as it lies along the new n_f (a
+   sign flip keeps r_d where it is). At the limit, pushed further out, delta stands still
+   and so does the reference: its velocity and acceleration along n_f are zero (an
+   acceleration reported there while r_d stood still was a constant error the law's c_hat
+   (3.11) integrated: a -10 N "pull away" target held 20 s in the air wound it to
+   13 m/s^2, and the tool came back pressing 206 N).
 
 The filter and the admittance are advanced by one classical RK4 step over each cycle's dt
 (the force held over the step) before the values are read.
@@ -53,6 +69,9 @@ from cr_control.core.so3 import (
     rotation_vector,
 )
 from cr_control.schemes.blocks import contact_guard as guard
+
+#: max_target_force's default (N).
+MAX_TARGET_FORCE = 100.0
 
 
 def reference_parameters(m: int, offset: list[float], amplitude: list[float],
@@ -81,6 +100,19 @@ def reference_parameters(m: int, offset: list[float], amplitude: list[float],
         Param("target_filter_frequency", 5.0, "Targets from ~/target_pose are followed through "
               "a critically damped filter of this natural frequency (rad/s).", "positive",
               bound=Bound.BANDWIDTH),
+        Param("target_max_speed", 0.5, "The reference follows a ~/target_pose at most this "
+              "fast (m/s): the target filter is given the target at most 2 v_max / w_f ahead "
+              "(a step within that is followed as before). 0.5 m/s: approach_speed's bound, "
+              "twice the 0.25 m/s of a collaborative arm near people.", "positive",
+              bound=Bound.SPEED),
+        Param("target_force_rate", 100.0, "After the first ~/target_wrench, the force given "
+              "to the law approaches each new one at most this fast (N/s): a 10 N step takes "
+              "0.1 s, and a target flipping sign every cycle moves it by rate x dt.", "positive",
+              bound=1e5),
+        Param("max_target_force", MAX_TARGET_FORCE, "A ~/target_wrench force above this (N, "
+              "Euclidean norm) is scaled down to it (logged); 100 N: a hard push by hand, 5x "
+              "the robots' 10 N wiping task (their profiles set 50 N).", "positive",
+              bound=Bound.FORCE),
         Param("force_admittance_mass", 1.0, "Force admittance on the reference: mass m_a "
               "(kg) of m_a delta'' + d_a delta' = n_f^T (f_d - f).", "positive", bound=Bound.MASS),
         Param("force_admittance_damping", 0.0, "Force admittance on the reference: damping "
@@ -104,25 +136,26 @@ def reference_gains(m: int, n: int) -> Layout:
                   reference_frequency=1, reference_relative=1, desired_force=m,
                   force_ramp_time=1, target_filter_frequency=1, force_admittance_mass=1,
                   force_admittance_damping=1, force_admittance_limit=1, posture=n, posture_given=1,
-                  **guard.guard_gains(m).shapes)
+                  **guard.guard_gains(m).shapes, target_max_speed=1, target_force_rate=1)
 
 
 def reference_state(m: int, n: int) -> Layout:
     """The desired motion's internal state for m axes and n joints."""
     return Layout(started=1, r_start=m, quat_start=4, q_start=n, pose_seq=1, r_f=m, v_f=m,
-                  quat_f=4, w_f=3, delta=2, guard=guard.guard_state(m).size)
+                  quat_f=4, w_f=3, delta=2, guard=guard.guard_state(m).size, n_f=m,
+                  f_target=m, f_target_set=1)
 
 
 @njit(cache=True, error_model="numpy")
 def reference_state_size(m, n):
     """reference_state(m, n).size, for kernels (the scheme's own state follows it)."""
-    return 3 * m + n + 15 + guard.guard_sizes(m)[1]
+    return 5 * m + n + 16 + guard.guard_sizes(m)[1]
 
 
 @njit(cache=True, error_model="numpy")
 def reference_gains_size(m, n):
     """reference_gains(m, n).size, for kernels."""
-    return 4 * m + 8 + n + guard.guard_sizes(m)[0]
+    return 4 * m + 10 + n + guard.guard_sizes(m)[0]
 
 
 @njit(cache=True, error_model="numpy")
@@ -182,6 +215,63 @@ def _admittance_step(delta, delta_dot, push, m_a, d_a, limit, dt):
 
 
 @njit(cache=True, error_model="numpy")
+def _slewed_target(slot, f_target, rate, dt):
+    """The target force the law is given: the first one as it came, each later one
+    approached at ``rate`` N/s at most (Euclidean); ``slot`` = [the force given, set flag]."""
+    m = f_target.shape[0]
+    if slot[m] == 0.0:
+        slot[:m] = f_target
+        slot[m] = 1.0
+    elif dt > 0.0:
+        step = f_target - slot[:m]
+        size = math.sqrt(np.sum(step * step))
+        if size > rate * dt:
+            step *= rate * dt / size
+        slot[:m] += step
+    return slot[:m].copy()
+
+
+@njit(cache=True, error_model="numpy")
+def _turn_admittance(state, s_delta, n_last, n_f):
+    """A desired force that turned (n_f is not the direction the admittance last ran
+    along, ``n_last``; zeros before the first time) keeps the shift it made, delta n_last,
+    as far as it lies along the new n_f: delta <- delta (n_last . n_f), delta' likewise (a
+    sign flip keeps r_d where it is instead of moving it by 2 delta: after a -10 N "pull"
+    target held at the limit, +10 N moved r_d 10 cm, from 5 cm above the table to 5 cm into
+    it, and the NN scheme hit the table with 28 N). ``n_last`` becomes n_f."""
+    m = n_f.shape[0]
+    turned, started, c = False, False, 0.0
+    for i in range(m):
+        turned = turned or n_last[i] != n_f[i]
+        started = started or n_last[i] != 0.0
+        c += n_last[i] * n_f[i]
+    if turned:
+        if started:
+            state[s_delta] *= c
+            state[s_delta + 1] *= c
+        n_last[:] = n_f
+
+
+@njit(cache=True, error_model="numpy")
+def _admittance_stopped(delta, push, limit):
+    """True where the admittance's shift is held at its limit and pushed further out: it
+    does not move (delta' = 0, delta'' = 0)."""
+    return abs(delta) >= limit and (limit <= 0.0 or push * delta >= 0.0)
+
+
+@njit(cache=True, error_model="numpy")
+def _leash(target, x, v_max, w):
+    """The target the filter is given: ``target``, or the point 2 v_max / w from ``x``
+    towards it if it is farther (module docstring)."""
+    length = 2.0 * v_max / w
+    gap = target - x
+    distance = math.sqrt(np.sum(gap * gap))
+    if distance <= length:
+        return target
+    return x + gap * (length / distance)
+
+
+@njit(cache=True, error_model="numpy")
 def _rows_of(x, rows, m):
     out = np.empty(m)
     for i in range(m):
@@ -206,6 +296,8 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
     o_w, o_rel, o_fd, o_ramp = 3 * m, 3 * m + 1, 3 * m + 2, 4 * m + 2
     o_wf, o_ma, o_da, o_lim = 4 * m + 3, 4 * m + 4, 4 * m + 5, 4 * m + 6
     o_post, o_post_given = 4 * m + 7, 4 * m + 7 + n
+    o_vmax, o_rate = gains.shape[0] - 2, gains.shape[0] - 1     # the block's last two
+    s_nf = 3 * m + n + 15 + guard.guard_sizes(m)[1]             # n_f, f_target: after the guard
     s_r0, s_q0, s_qs = 1, 1 + m, 5 + m
     s_seq, s_rf, s_vf = 5 + m + n, 6 + m + n, 6 + 2 * m + n
     s_qf, s_wf, s_delta = 6 + 3 * m + n, 10 + 3 * m + n, 13 + 3 * m + n
@@ -257,6 +349,7 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
             else:
                 target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
                 target_q = targets[_T_QUAT:_T_QUAT + 4].copy()
+            target = _leash(target, state[s_rf:s_rf + m], gains[o_vmax], w_f)
             x, xd = _filter_step(state[s_rf:s_rf + m], state[s_vf:s_vf + m], target, w_f, dt)
             state[s_rf:s_rf + m], state[s_vf:s_vf + m] = x, xd
             w_rot = state[s_wf:s_wf + 3]
@@ -272,11 +365,13 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
         else:
             target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
         r_d, v_d = state[s_rf:s_rf + m].copy(), state[s_vf:s_vf + m].copy()
+        target = _leash(target, r_d, gains[o_vmax], w_f)
         a_d = w_f * w_f * (target - r_d) - 2.0 * w_f * v_d
     f_d = gains[o_fd:o_fd + m].copy()
     if has_wrench:
         guard.fresh_wrench(s_guard, m, targets[_T_WRENCH_SEQ], t)
-        f_d = f_target * guard.wrench_factor(g_guard, s_guard, t, dt, m, targets[_T_WRENCH_SEQ])
+        f_d = (_slewed_target(state[s_nf + m:s_nf + 2 * m + 1], f_target, gains[o_rate], dt)
+               * guard.wrench_factor(g_guard, s_guard, t, dt, m, targets[_T_WRENCH_SEQ]))
     ramp = smoothstep(t_path / gains[o_ramp]) if gains[o_ramp] > 0.0 else 1.0
     f_d *= guard.contact_ramp(g_guard, s_guard, ramp, math.sqrt(np.sum(f_d * f_d)))
     _, d_s = guard.monitor(g_guard, s_guard, force, f_d, dt, ramp >= 1.0)
@@ -286,6 +381,7 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
         n_f = f_d / f_norm
         m_a = gains[o_ma]
         push = np.sum(n_f * (f_d - force))
+        _turn_admittance(state, s_delta, state[s_nf:s_nf + m], n_f)
         delta, delta_dot = state[s_delta], state[s_delta + 1]
         if dt > 0.0:
             delta, delta_dot = _admittance_step(delta, delta_dot, push, m_a, d_a,
@@ -293,6 +389,7 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
             state[s_delta], state[s_delta + 1] = delta, delta_dot
         r_d -= delta * n_f
         v_d -= delta_dot * n_f
-        a_d -= (push - d_a * delta_dot) / m_a * n_f
+        if not _admittance_stopped(delta, push, gains[o_lim]):
+            a_d -= (push - d_a * delta_dot) / m_a * n_f
     posture = gains[o_post:o_post + n] if gains[o_post_given] > 0.0 else state[s_qs:s_qs + n]
     return r_d, v_d, a_d, f_d, quat_d, w_d, posture.copy(), ramp

@@ -35,11 +35,29 @@ ZERO_WINDOW_S (0.2 s, 200 readings at 1 kHz: the 0.2 N noise averages to 0.014 N
 with the weight the model predicts at each reading, w = [m R_S^T g; c x m R_S^T g]; the new
 bias is b_1 = mean(W_S - w); then (2). "Out of contact" is judged, when asked, by what the
 controller knows: the joints are still (|q'| <= ZERO_MAX_JOINT_SPEED), the law asks no
-contact force (|f_d| <= ZERO_MAX_FORCE) and the compensated force with the bias in use is
-small (|f| <= ZERO_MAX_FORCE); the zeroing is abandoned, keeping the old bias, if the joints
-move during the window or the new force bias differs from the old by more than
-ZERO_MAX_FORCE. A contact lighter than ZERO_MAX_FORCE cannot be told from a bias by the
-sensor alone: zero with the tool in the air (or touching at zero force).
+contact force (|f_d| <= ZERO_MAX_DESIRED_FORCE: a law asking for more presses on purpose)
+and the compensated force with the bias in use is small (|f| <= ZERO_MAX_FORCE); the
+zeroing is abandoned, keeping the old bias, if the joints move during the window or the new
+force bias differs from the old by more than ZERO_MAX_FORCE. A contact lighter than
+ZERO_MAX_FORCE cannot be told from a bias by the sensor alone: zero with the tool in the air
+(or touching at zero force).
+
+Those checks compare with the bias in use, so zeroings repeated while the tool touches
+something would walk the bias step by step, each step a contact force under ZERO_MAX_FORCE
+taken for bias (measured before this bound, the Panda asked for 4.5 N and zeroed every
+0.2 s for 3 s: the robust scheme took 4 of 14 calls, the force bias walked from +3 N to
+-13 N and the law read 3.6 N of a true 19.8 N). So a new force bias is also compared with the
+FIRST one (:attr:`WristSensor.first_bias`: ``ft_bias``, or the start-up zeroing's, or the
+last forced one) and refused, at the call when the last reading already tells (the bias the
+contact would make, b + R_S^T f) and else when the window ends, if they differ by more than
+``zero_ft_max_change`` (5 N by default: room for the slow drift of a strain-gauge sensor's
+bias with temperature over a session, see "Model based in situ calibration with temperature
+compensation of 6 axis force torque sensors", arXiv:1812.00650, and half the robots' 10 N
+task, so a walk can never take more than that). ``~/zero_ft_force`` (``force=True``) is the
+operator saying the tool touches nothing: only "no state", "moving", "a zeroing under way"
+and "the law asks for a contact force" refuse it, and its bias becomes the first one. Every
+refusal and abandonment is logged, at most one line every WARN_EVERY_S (5 s) with the count
+of those held back in between (:class:`RateLimitedLog`).
 
 At start-up (``zero_ft_at_start``, for a task that starts still, touching at zero force
 or in the air, such as the robots' wiping task): the controller first holds the arm still
@@ -61,6 +79,8 @@ the loaded 2-core machine); its compute p50 in the offline loop 33 us without, 3
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 
 import numpy as np
 import pinocchio as pin
@@ -90,8 +110,13 @@ HOLD_BLEND_S = 0.05
 ZERO_BLEND_S = 0.5
 #: "Still": joint speed |q'| (Euclidean, rad/s) at most this during a zeroing.
 ZERO_MAX_JOINT_SPEED = 0.05
-#: "Out of contact": compensated force, desired force and the bias change at most this (N).
+#: "Out of contact": compensated force and the bias change from the bias in use at most
+#: this (N).
 ZERO_MAX_FORCE = 5.0
+#: "The law asks no contact force": |f_d| at most this (N).
+ZERO_MAX_DESIRED_FORCE = 0.5
+#: Refusals and abandonments of zeroings are logged at most this often (s), with a count.
+WARN_EVERY_S = 5.0
 
 PARAMETERS = [
     Param("sensor_frame", "", "Frame of the force/torque sensor's wrench (a link riding on "
@@ -123,6 +148,11 @@ PARAMETERS = [
           "touching at zero force or in the air): the arm is held still by gravity "
           f"compensation while the sensor is averaged over {ZERO_START_WINDOW_S:g} s, then "
           "the law starts.", "bool", read_only=True),
+    Param("zero_ft_max_change", 5.0, "~/zero_ft refuses a new force bias farther than this "
+          "(N) from the first one (ft_bias, the start-up zeroing's or the last forced one), "
+          "so repeated zeroings cannot walk the bias away while the tool touches something; "
+          "~/zero_ft_force takes it anyway. 5 N: room for a strain-gauge sensor's slow drift, "
+          "half the robots' 10 N task.", "nonnegative", bound=Bound.FORCE),
 ]
 NAMES = tuple(p.name for p in PARAMETERS)
 
@@ -290,6 +320,32 @@ def sensor_placement(chain_model, sensor_frame: str) -> pin.SE3:
     return pin.SE3(frame.placement)
 
 
+class RateLimitedLog:
+    """One line at most every ``every`` seconds of ``clock`` (monotonic), saying how many
+    were held back since the last one (as :meth:`Controller._warn`)."""
+
+    def __init__(self, every: float = WARN_EVERY_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.every, self.clock = every, clock
+        self._at = -math.inf
+        self._held = 0
+        #: Lines asked for in all (logged or held back).
+        self.count = 0
+
+    def __call__(self, log: Callable[[str], None], message: str) -> bool:
+        """Log ``message`` through ``log`` unless one was logged less than ``every`` ago;
+        True if logged."""
+        self.count += 1
+        now = self.clock()
+        if now - self._at < self.every:
+            self._held += 1
+            return False
+        more = f" ({self._held} more since the last such line)" if self._held else ""
+        self._at, self._held = now, 0
+        log(message + more)
+        return True
+
+
 def weight_wrench(R: np.ndarray, mass: float, com: np.ndarray, gravity: np.ndarray) -> np.ndarray:
     """w = [m R^T g; c x m R^T g] (6, sensor frame) for R (3 x 3, base <- S)."""
     force = mass * (R.T @ gravity)
@@ -329,6 +385,9 @@ class WristSensor:
                            or self.at_start)
         self.R = np.zeros(9)
         self.bias = np.array(values["ft_bias"], dtype=float)
+        #: The bias a zeroing's result is compared with (module docstring): ft_bias, then
+        #: the start-up zeroing's, or the last forced one.
+        self.first_bias = self.bias.copy()
         self.force = np.zeros(3)
         self._wrench = np.zeros(6)
         self._zero: dict | None = None      # the zeroing under way: window end, sums
@@ -339,6 +398,9 @@ class WristSensor:
         self.last_speed = math.inf
         self.zero_count = 0
         self.log = print
+        #: Where refusals and abandonments go (rate-limited by :attr:`refusals`).
+        self.warn = print
+        self.refusals = RateLimitedLog()
 
     def set_tool(self, values: dict) -> None:
         """Take tool_mass and tool_com."""
@@ -368,6 +430,7 @@ class WristSensor:
             if start:
                 if self._zero is None:      # the start-up bias: in use from now on
                     self._set_bias_now(self.comp[B1_AT:B1_AT + 6].copy())
+                    self.first_bias = self.comp[B1_AT:B1_AT + 6].copy()
                     self.law_start = t
                     compensate_into(self._rotation_chain, self.comp, t, q, v, w, w, self.R,
                                     self.bias, self.force)
@@ -405,9 +468,14 @@ class WristSensor:
                     and self.last_t < self.comp[TB_AT] + self.comp[TBLEND_AT])
         return self._zero is not None or bool(blending)
 
-    def request_zero(self, desired_force: np.ndarray | None = None) -> tuple[bool, str]:
-        """Start a zeroing (``~/zero_ft``): (accepted, message). Refused while one runs,
-        before the first state, while the joints move or while in contact (module docstring)."""
+    def request_zero(self, desired_force: np.ndarray | None = None, max_change: float = 5.0,
+                     force: bool = False) -> tuple[bool, str]:
+        """Start a zeroing (``~/zero_ft``; ``force``: ``~/zero_ft_force``): (accepted,
+        message). Refused while one runs, before the first state, while the joints move,
+        while the law asks for a contact force, and unless forced while in contact or when
+        the bias the last reading makes is farther than ``max_change`` (N) from the first
+        one (module docstring). Only the answer says why; the log is left to the caller
+        (:meth:`refused`)."""
         if not math.isfinite(self.last_t):
             return False, "no state and wrench yet: nothing to zero"
         if self.zeroing:
@@ -416,20 +484,40 @@ class WristSensor:
             return False, (f"moving: |q'| = {self.last_speed:.3g} rad/s > "
                            f"{ZERO_MAX_JOINT_SPEED:g} rad/s; zero while still")
         f = float(np.linalg.norm(self.force))
-        if f > ZERO_MAX_FORCE:
+        if not force and f > ZERO_MAX_FORCE:
             return False, (f"in contact: compensated force {f:.3g} N > {ZERO_MAX_FORCE:g} N; "
                            "zero out of contact")
-        if desired_force is not None and float(np.linalg.norm(desired_force)) > ZERO_MAX_FORCE:
-            return False, (f"the law asks for a contact force of "
-                           f"{float(np.linalg.norm(desired_force)):.3g} N: zero out of contact")
-        self._begin_zero(self.last_t, ZERO_WINDOW_S, check=True)
+        f_d = 0.0 if desired_force is None else float(np.linalg.norm(desired_force))
+        if f_d > ZERO_MAX_DESIRED_FORCE:
+            return False, (f"the law asks for a contact force of {f_d:.3g} N (> "
+                           f"{ZERO_MAX_DESIRED_FORCE:g} N): zero out of contact")
+        if not force:
+            # the bias the contact now read would make: b + R_S^T f (force part)
+            drift = float(np.linalg.norm(self.bias[:3] + self.R.reshape(3, 3).T @ self.force
+                                         - self.first_bias[:3]))
+            if drift > max_change:
+                return False, self._too_far(drift, max_change)
+        self._begin_zero(self.last_t, ZERO_WINDOW_S, check=True, force=force,
+                         max_change=max_change)
         self.active = True
-        return True, (f"zeroing: averaging the sensor over {ZERO_WINDOW_S:g} s, then blending "
-                      f"the new bias in over {ZERO_BLEND_S:g} s")
+        return True, (f"zeroing{' (forced)' if force else ''}: averaging the sensor over "
+                      f"{ZERO_WINDOW_S:g} s, then blending the new bias in over "
+                      f"{ZERO_BLEND_S:g} s")
 
-    def _begin_zero(self, t: float, window: float, check: bool) -> None:
+    def refused(self, message: str) -> None:
+        """Log a refused or abandoned zeroing (rate-limited, :class:`RateLimitedLog`)."""
+        self.refusals(self.warn, message)
+
+    def _too_far(self, drift: float, max_change: float) -> str:
+        return (f"the force bias would move {drift:.3g} N from the first one "
+                f"{np.round(self.first_bias[:3], 3).tolist()} N (> zero_ft_max_change "
+                f"{max_change:g} N): a contact taken for bias? Zero with the tool touching "
+                "nothing; ~/zero_ft_force takes it anyway")
+
+    def _begin_zero(self, t: float, window: float, check: bool, force: bool = False,
+                    max_change: float = math.inf) -> None:
         self._zero = {"begin": t, "end": t + window - 1e-9, "sum": np.zeros(6), "count": 0,
-                      "check": check}
+                      "check": check, "force": force, "max_change": max_change}
 
     def _zeroing(self, t: float, w: np.ndarray) -> None:
         z = self._zero
@@ -437,8 +525,8 @@ class WristSensor:
             return
         if z["check"] and self.last_speed > ZERO_MAX_JOINT_SPEED:
             self._zero = None
-            self.log(f"zero_ft abandoned: the joints moved (|q'| = {self.last_speed:.3g} rad/s); "
-                     "the bias stays as it was")
+            self.refused(f"zero_ft abandoned: the joints moved (|q'| = {self.last_speed:.3g} "
+                         "rad/s); the bias stays as it was")
             return
         z["sum"] += w - self._weight()
         z["count"] += 1
@@ -448,10 +536,17 @@ class WristSensor:
         new = z["sum"] / z["count"]
         old = self.bias.copy()
         change = float(np.linalg.norm(new[:3] - old[:3]))
-        if z["check"] and change > ZERO_MAX_FORCE:
-            self.log(f"zero_ft abandoned: the force bias would change by {change:.3g} N > "
-                     f"{ZERO_MAX_FORCE:g} N (a contact?); the bias stays as it was")
+        if z["check"] and not z["force"] and change > ZERO_MAX_FORCE:
+            self.refused(f"zero_ft abandoned: the force bias would change by {change:.3g} N > "
+                         f"{ZERO_MAX_FORCE:g} N (a contact?); the bias stays as it was")
             return
+        drift = float(np.linalg.norm(new[:3] - self.first_bias[:3]))
+        if z["check"] and not z["force"] and drift > z["max_change"]:
+            self.refused(f"zero_ft abandoned: {self._too_far(drift, z['max_change'])}; the "
+                         "bias stays as it was")
+            return
+        if z["force"]:
+            self.first_bias = new.copy()
         self.comp[B0_AT:B0_AT + 6] = old
         self.comp[B1_AT:B1_AT + 6] = new
         self.comp[TB_AT] = t
@@ -459,7 +554,8 @@ class WristSensor:
         self.zero_count += 1
         self.log(f"zero_ft: new bias {np.round(new, 4).tolist()} (force N, torque N m, "
                  f"{self.sensor_frame or 'base frame'}) from {z['count']} readings, blended in "
-                 f"over {ZERO_BLEND_S:g} s")
+                 f"over {ZERO_BLEND_S:g} s" + ("; forced: the first bias from now on"
+                                              if z["force"] else ""))
 
 
 def frame_rotation(chain_model, q: np.ndarray, frame: str) -> np.ndarray:

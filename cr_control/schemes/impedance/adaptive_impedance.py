@@ -57,7 +57,8 @@ class AdaptiveImpedanceController(TaskSpaceController):
     def law_parameters(cls, model, thesis):
         return impedance.impedance_parameters(model.m, A_m=20.0, B_m=400.0, P1=1.25, P2=6.56,
                                               A0=45.0, B0=30.0, c0=[1.0] * model.m, Q=5.0,
-                                              Q_bc_star=1.5)
+                                              Q_bc_star=1.5,
+                                              c_max=0.0 if thesis else impedance.C_HAT_MAX)
 
     def law_status_fields(self):
         return impedance.estimate_fields(self.model.position_axes)

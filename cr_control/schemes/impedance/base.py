@@ -17,7 +17,20 @@ an unknown robot holds still.
 
 Targets: :meth:`TaskSpaceController.set_target_pose` and :meth:`set_target_wrench` (the
 node's ``~/target_pose`` and ``~/target_wrench``) take effect from the next cycle
-(:mod:`cr_control.schemes.blocks.references`).
+(:mod:`cr_control.schemes.blocks.references`). Targets the arm cannot or must not follow
+are dealt with here, each with a reason logged at most once every 5 s (with a count):
+a non-finite value or a zero quaternion is refused; the quaternion is normalised without
+overflow (scaled by its largest element first: a quaternion of norm 1e200 is a rotation,
+not zeros); a position farther from the first joint than the chain's reach is moved onto
+that sphere along the same direction (:func:`chain_reach`: the sum of the URDF's
+joint-to-joint distances and the tip's offset, which no configuration exceeds, by the
+triangle inequality; along the task's position axes); a force above ``max_target_force``
+is scaled down to it. The reference then follows a pose at most ``target_max_speed`` and
+the force given to the law changes at most ``target_force_rate``
+(:mod:`cr_control.schemes.blocks.references`). Measured before (the Panda's wiping task,
+offline, no reflex): a target pose 10 m up made the reference ask 17.5 m/s, the tip reached
+3 m/s and the law saturated and braked; a 1e6 N target wrench pressed 231 N before braking;
+a quaternion of norm 1e200 became zeros.
 
 Wrist sensor (issue 24): with ``sensor_frame``, ``tool_mass``, ``ft_bias`` or
 ``zero_ft_at_start`` set, the wrench given to :meth:`compute` (force, or force and torque, in
@@ -61,6 +74,29 @@ JOINT_NAMES = Param("joint_names", [], "Joints commanded, in the order of the co
 #: every joint is clipped at its own limit first, so a larger value clips nothing (a slip
 #: of units, N mm for N m).
 EFFORT_LIMIT_FACTOR = 10.0
+
+
+def chain_reach(chain_model) -> tuple[np.ndarray, float]:
+    """(centre, radius): the first joint's origin (base frame) and the farthest the tip can
+    be from it: the distances between successive joint origins and from the last joint to
+    the tip (constant across a revolute joint), plus each prismatic joint's largest travel
+    (inf without limits)."""
+    model = chain_model.model
+    centre = np.array(model.jointPlacements[1].translation, dtype=float)
+    radius = sum(float(np.linalg.norm(model.jointPlacements[j].translation))
+                 for j in range(2, model.njoints))
+    radius += float(np.linalg.norm(model.frames[chain_model.tip].placement.translation))
+    lim = chain_model.limits
+    for j, kind in enumerate(chain_model.kinds):
+        if kind == "prismatic":
+            radius += max(abs(float(lim.lower[j])), abs(float(lim.upper[j])))
+    return centre, radius
+
+
+def safe_norm(x: np.ndarray) -> float:
+    """|x| without overflow or underflow (scaled by its largest element first)."""
+    scale = float(np.max(np.abs(x))) if x.size else 0.0
+    return 0.0 if scale == 0.0 else scale * float(np.linalg.norm(x / scale))
 
 
 def max_effort_on(param: Param, model: TaskModel) -> Param:
@@ -216,6 +252,7 @@ class TaskSpaceController(Controller):
         self._hold_data = None
         self._new_wrist_sensor()
         self._robot_side()
+        self._target_checks()
 
     def _robot_side(self) -> None:
         """What the robot does and does not do for the law (``robot_compensates_*``): the
@@ -240,10 +277,22 @@ class TaskSpaceController(Controller):
         self._gravity_axes = np.array([values["gravity"]["xyz".index(a)] for a in axes])
         self._velocity_limit = self.model.limits[2 * n:3 * n].copy()
 
+    def _target_checks(self) -> None:
+        """The sphere target positions are held to (:func:`chain_reach`) and the rate
+        limits of the targets' log lines."""
+        self.reach_centre, self.reach = chain_reach(self.model.chain_model)
+        self._position_rows = self.model.task[3:3 + self.model.m].astype(int)
+        self.target_notes = {"pose": wrist_sensor.RateLimitedLog(),
+                             "wrench": wrist_sensor.RateLimitedLog()}
+
+    def _target_note(self, which: str, message: str) -> None:
+        self.target_notes[which](self.log_warning, f"{self.scheme}: {message}")
+
     def _new_wrist_sensor(self) -> None:
         """The wrist sensor's compensation and zeroing state, as at start."""
         self.wrist = wrist_sensor.WristSensor(self.values, self.model)
         self.wrist.log = lambda message: self.log_info(f"{self.scheme}: {message}")
+        self.wrist.warn = lambda message: self.log_warning(f"{self.scheme}: {message}")
 
     def status_field_names(self) -> list[str]:
         return self._status
@@ -294,13 +343,25 @@ class TaskSpaceController(Controller):
         compensate), False if the force alone (the ideal sensor)."""
         return self.wrist.active
 
-    def zero_ft(self) -> tuple[bool, str]:
-        """Start zeroing the wrist sensor (``~/zero_ft``): (accepted, message)."""
+    def zero_ft(self, force: bool = False) -> tuple[bool, str]:
+        """Start zeroing the wrist sensor (``~/zero_ft``; ``force``: ``~/zero_ft_force``,
+        the operator vouching that the tool touches nothing): (accepted, message). A refusal
+        is also logged, at most one line every few seconds
+        (:mod:`cr_control.schemes.blocks.wrist_sensor`)."""
         desired = None
         if self._last is not None and "f_d_x" in self.reference_fields:
             i = self.reference_fields.index("f_d_x") - 1
             desired = self._last.reference[i:i + self.model.m]
-        return self.wrist.request_zero(desired)
+        answer = self.wrist.request_zero(desired, self.values["zero_ft_max_change"], force)
+        if not answer[0]:
+            self.wrist.refused(f"~/zero_ft{'_force' if force else ''} refused: {answer[1]}")
+        return answer
+
+    def zero_ft_refused(self, message: str) -> tuple[bool, str]:
+        """A ``~/zero_ft`` the node refuses itself (no wrench yet): logged as the
+        controller's refusals are (rate-limited); (False, message)."""
+        self.wrist.refused(f"~/zero_ft refused: {message}")
+        return False, message
 
     def warm_up(self) -> None:
         super().warm_up()
@@ -332,19 +393,55 @@ class TaskSpaceController(Controller):
         self.law_gains.pack(self.law_gain_values(), out)
 
     # -- targets ---------------------------------------------------------------------------------
-    def set_target_pose(self, position: np.ndarray, quaternion: np.ndarray) -> None:
-        """A new target pose (base frame; quaternion [w, x, y, z]), from the next cycle."""
+    def set_target_pose(self, position: np.ndarray, quaternion: np.ndarray) -> bool:
+        """A new target pose (base frame; quaternion [w, x, y, z]), from the next cycle;
+        False if refused (module docstring: non-finite, zero quaternion), a position beyond
+        the reach moved onto it."""
+        position = np.array(position, dtype=float).reshape(3)
+        q = np.array(quaternion, dtype=float).reshape(4)
+        if not (np.all(np.isfinite(position)) and np.all(np.isfinite(q))):
+            self._target_note("pose", "~/target_pose with a non-finite value refused")
+            return False
+        scale = float(np.max(np.abs(q)))
+        if scale == 0.0:
+            self._target_note("pose", "~/target_pose with a zero quaternion refused")
+            return False
+        q = q / scale
+        q /= np.linalg.norm(q)
+        rows = self._position_rows
+        offset = position[rows] - self.reach_centre[rows]
+        distance = safe_norm(offset)
+        if distance > self.reach:
+            given = position.copy()
+            position[rows] = self.reach_centre[rows] + (offset / distance) * self.reach
+            self._target_note("pose", f"~/target_pose position {given.tolist()} is {distance:.3g} "
+                              f"m from the first joint, beyond the arm's reach "
+                              f"{self.reach:.3g} m: moved onto it, to "
+                              f"{np.round(position, 4).tolist()}")
         t = self.targets
         t[TARGETS.offset("position"):TARGETS.offset("position") + 3] = position
-        q = np.asarray(quaternion, dtype=float)
-        t[TARGETS.offset("quaternion"):TARGETS.offset("quaternion") + 4] = q / np.linalg.norm(q)
+        t[TARGETS.offset("quaternion"):TARGETS.offset("quaternion") + 4] = q
         t[TARGETS.offset("pose_seq")] += 1.0
+        return True
 
-    def set_target_wrench(self, force: np.ndarray) -> None:
-        """A new desired contact force (base frame, N), from the next cycle."""
+    def set_target_wrench(self, force: np.ndarray) -> bool:
+        """A new desired contact force (base frame, N), from the next cycle; False if
+        refused (non-finite), scaled down to ``max_target_force`` if above it."""
+        force = np.array(force, dtype=float).reshape(3)
+        if not np.all(np.isfinite(force)):
+            self._target_note("wrench", "~/target_wrench with a non-finite value refused")
+            return False
+        size, bound = safe_norm(force), self.values["max_target_force"]
+        if size > bound:
+            given = force.copy()
+            force = (force / size) * bound
+            self._target_note("wrench", f"~/target_wrench force {given.tolist()} N: |f| = "
+                              f"{size:.3g} N is above max_target_force {bound:g} N: scaled "
+                              f"down to {np.round(force, 3).tolist()} N")
         t = self.targets
         t[TARGETS.offset("force"):TARGETS.offset("force") + 3] = force
         t[TARGETS.offset("wrench_seq")] += 1.0
+        return True
 
     # -- the cycle ---------------------------------------------------------------------------------
     def compute(self, t, dt, q, v, force) -> ControlOutput:

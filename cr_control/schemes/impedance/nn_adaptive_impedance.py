@@ -214,7 +214,8 @@ class NNAdaptiveImpedanceController(SlidingController):
                 + impedance.impedance_parameters(m, A_m=20.0, B_m=40.0, P1=0.625, P2=6.5,
                                                  A0=1.0, B0=110.0, c0=[-4.0, 4.0] if thesis
                                                  else [0.0] * m, Q=4.0, Q_bc_star=8.0,
-                                                 Q_a_star=4.0))
+                                                 Q_a_star=4.0,
+                                                 c_max=0.0 if thesis else impedance.C_HAT_MAX))
 
     def own_status_fields(self) -> list[str]:
         return list(NN_STATUS_FIELDS)

@@ -81,7 +81,8 @@ class RobustAdaptiveImpedanceController(SlidingController):
                 + UNCERTAINTY_PARAMETERS
                 + impedance.impedance_parameters(m, A_m=20.0, B_m=400.0, P1=1.25, P2=6.56,
                                                  A0=45.0, B0=30.0, c0=[1.0] * m, Q=5.0,
-                                                 Q_bc_star=1.5))
+                                                 Q_bc_star=1.5,
+                                                 c_max=0.0 if thesis else impedance.C_HAT_MAX))
 
     def own_gains_layout(self) -> Layout:
         return Layout(delta_M=1, delta_C=1, delta_G=1, delta_f=1)

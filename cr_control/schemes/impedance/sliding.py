@@ -35,7 +35,7 @@ from cr_control.schemes.impedance.base import TaskSpaceController
 @njit(cache=True, error_model="numpy")
 def _sizes(m):
     """(impedance gains, sliding gains, impedance state) sizes for m axes."""
-    return 12 * m * m + m, 4 * m * m + 2, 4 * m * m + 5 * m + 1
+    return 12 * m * m + m + 1, 4 * m * m + 2, 4 * m * m + 5 * m + 1
 
 
 @njit(cache=True, error_model="numpy")

@@ -1,6 +1,16 @@
 """What the chapter 5 schemes share: the controller (5.7) on a known unilateral surface
 (:mod:`cr_control.schemes.blocks.unidirectional_impedance`), with the damping d_m and the
-stiffness k_m chosen per cycle by the scheme (fixed, 5.7; fuzzy, 5.20)."""
+stiffness k_m chosen per cycle by the scheme (fixed, 5.7; fuzzy, 5.20).
+
+A ``~/target_wrench`` whose part along the outward normal is negative asks the surface to
+pull the tool: a unilateral surface cannot (f = f_m n, f_m >= 0, 5.8; f_d = f_dm n with
+f_dm >= 0, 5.9), and (5.6) would turn it into a motion away from the surface of
+|f_dm| / k_m (0.83 m for -50 N at k_m = 60 N/m) and an impact on the way back (measured on
+the Panda's wiping task: after -50 N for 1 s the tool was still off the table 3 s after
++10 N was asked again; with less normal damping, -10 N for 2 s then +10 N hit the table
+with 19.5 N). That part is taken as zero:
+f_d <- f_d - min(f_dm, 0) n, the tool stays on the surface at zero normal force; to leave
+the surface, send a target pose."""
 
 from __future__ import annotations
 
@@ -34,6 +44,9 @@ def unidirectional_front(chain, gains, state, targets, t, dt, q, v, force):
         gains_contact, frame.r, f, f_d_ref, targets[_WRENCH_SEQ] != 0.0,
         guard.contact_ramp(common_blocks(gains)[4][4 * m + 8 + q.shape[0]:],
                            guard_state_of(state, m, q.shape[0]), ramp, gains_contact[0]))
+    if f_dm < 0.0:          # a target pulling on the unilateral surface (module docstring)
+        f_d = f_d - f_dm * n
+        f_dm = 0.0
     return (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, f_dm,
             r_d - frame.r, v_d - frame.r_dot, gains_contact, law[size:])
 
