@@ -256,8 +256,8 @@ class NNAdaptiveImpedanceController(SlidingController):
         per_dim, max_nodes = values["rbf_centres_per_dim"], values["rbf_max_nodes"]
         self.centres_q = rbf_network.centres(low[:n], high[:n], per_dim, max_nodes)
         self.centres_qv = rbf_network.centres(low, high, per_dim, max_nodes)
-        super().__init__(values)
         self._warm_q0 = q_path[0]          # rbf_seed moved onto the desired motion's start
+        super().__init__(values)
         self.true_model = task_model(self.values, model_free=False)
         self._norms_at = (len(self.status_fields) - 1 - len(self._law_fields)
                           + 2 * self.model.m + 1)
