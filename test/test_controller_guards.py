@@ -100,7 +100,7 @@ def test_a_law_failing_for_good_stops_commanding_after_exactly_max_bad_cycles(wh
     line = logs.error[0]
     assert line.startswith("adaptive_impedance: more than 50 cycles in a row (max_bad_cycles) "
                            "with a non-finite or saturated output (")
-    assert "commands stopped; the plant's watchdog will brake" in line
+    assert "braking (the braking command is published in its place)" in line
     assert ("non-finite command" if what == "command" else "internal state not finite") in line
 
 
@@ -168,12 +168,12 @@ def test_a_law_pinned_at_its_limit_stops_commanding(overrides, limit):
         out = ctl.step(m.time, m.position, m.velocity, m.force)
         plant.step(out.command, PERIOD)
         commanding.append(ctl.commanding)
+        if not ctl.commanding:      # this cycle's output is the brake, not the law's
+            break
         pinned = pinned + 1 if np.isclose(np.abs(out.command).max(), min(
             ctl.values["max_effort"], 20.0)) else 0
-        if not ctl.commanding:
-            break
     assert commanding[-1] is False and commanding.count(False) == 1
-    assert pinned >= MAX_BAD + 1                         # every counted cycle at the clip
+    assert pinned >= MAX_BAD                             # every counted cycle at the clip
     assert len(logs.error) == 1 and f"(its limit: {limit})" in logs.error[0], logs.error
 
 
@@ -258,15 +258,21 @@ GID_A, GID_B = bytes(range(16)), bytes(range(16, 32))
 
 
 @pytest.mark.ros
-def test_a_node_whose_law_fails_stops_publishing_commands(node):
+def test_a_node_whose_law_fails_brakes_through_the_command_topic(node):
+    """A forward_command_controller keeps the last command it got: a controller whose law
+    failed for good keeps publishing, and what it publishes is its braking command (finite,
+    other than the held one), not the law's last output."""
     node._on_joint_state(state(0), GID_A)
     poison(node.controller)
     for k in range(1, MAX_BAD + 11):
         node._on_joint_state(state(k), GID_A)
-    assert len(node.published) == 1 + MAX_BAD               # the good one, then the held ones
+    assert len(node.published) == 1 + MAX_BAD + 10          # the good one, held ones, brakes
     assert status(node)["commands_stopped"] == 1.0
-    node._on_joint_state(state(MAX_BAD + 10), GID_A)        # a repeated state: no answer either
-    assert len(node.published) == 1 + MAX_BAD
+    held, brake = (np.array(deserialize_message(node.published[i], JointState).effort)
+                   for i in (MAX_BAD, -1))
+    assert np.all(np.isfinite(brake)) and not np.array_equal(brake, held)
+    node._on_joint_state(state(MAX_BAD + 10), GID_A)        # a repeated state: the same brake
+    assert node.published[-1] == node.published[-2]
 
 
 @pytest.mark.ros

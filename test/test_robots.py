@@ -41,7 +41,7 @@ from cr_control.tools.offline import robot_period, run_scheme
 PROFILES = tuple(robots.ROBOTS)
 CASES = [(r, s) for r in PROFILES for s in robots.TASK_SPACE_SCHEMES]
 #: Each profile's robot (the lockstep comparison runs one variant of each).
-LOCKSTEP_CASES = [(r, s) for r in ("panda", "ur5_ft") for s in robots.TASK_SPACE_SCHEMES]
+LOCKSTEP_CASES = [(r, s) for r in ("panda", "ur5") for s in robots.TASK_SPACE_SCHEMES]
 CH5 = ("impedance", "fuzzy_unidirectional")
 
 RADIAL_RMS_M = 2e-3

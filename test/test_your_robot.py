@@ -173,7 +173,7 @@ def test_a_controller_drives_a_ros2_control_robot(ros_env, probe):
     assert executable.is_file(), executable
     started = time.monotonic()
     controller = start_node([str(executable)], ros_env, "--params-file",
-                            str(config_file("robots/panda/adaptive_impedance.yaml")),
+                            str(config_file("robots/panda_ft/adaptive_impedance.yaml")),
                             "-p", f"forward_command_topic:={FORWARD_TOPIC}",
                             "-p", f"joint_names:=[{', '.join(FORWARD_JOINTS)}]")
     try:

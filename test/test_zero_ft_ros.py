@@ -40,7 +40,7 @@ def test_zero_ft_service(ros_env):
     probe = RosProbe(int(ros_env["ROS_DOMAIN_ID"]), name="zero_ft_probe")
     executable = Path(sys.executable).with_name("adaptive_impedance")
     controller = start_node([str(executable)], ros_env, "--params-file",
-                            str(config_file("robots/panda/adaptive_impedance.yaml")),
+                            str(config_file("robots/panda_ft/adaptive_impedance.yaml")),
                             "-p", "zero_ft_at_start:=false")
     try:
         node = probe.node

@@ -152,9 +152,18 @@ def qos_profile_dict(qos: QoSProfile) -> dict[str, Any]:
     }
 
 
+class PlainDumper(yaml.SafeDumper):
+    """A safe YAML dumper that writes every value out, never an anchor and alias: rosbag2
+    writes one entry per publisher even when they are equal, and readers (ours among them)
+    refuse aliases."""
+
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
 def qos_profiles_yaml(profiles: Sequence[dict[str, Any]]) -> str:
     """The ``offered_qos_profiles`` channel metadata string."""
-    return yaml.safe_dump(list(profiles), sort_keys=False, default_flow_style=False)
+    return yaml.dump(list(profiles), Dumper=PlainDumper, sort_keys=False, default_flow_style=False)
 
 
 def request_qos(offered: Sequence[QoSProfile]) -> QoSProfile:

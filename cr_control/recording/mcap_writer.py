@@ -39,7 +39,12 @@ from mcap.records import (
 )
 from mcap.writer import MCAP0_MAGIC, CompressionType
 
-from cr_control.recording.definitions import ROSBAG2_METADATA_VERSION, message_definition, qos_profiles_yaml
+from cr_control.recording.definitions import (
+    ROSBAG2_METADATA_VERSION,
+    PlainDumper,
+    message_definition,
+    qos_profiles_yaml,
+)
 
 # -- the MCAP file ---------------------------------------------------------------------
 
@@ -360,7 +365,7 @@ class McapBagWriter:
         OSError if that fails (the file then cut back to its last whole record and closed)."""
         if self._closed:
             return
-        serialized = yaml.safe_dump(self.bag_metadata(), sort_keys=False)
+        serialized = yaml.dump(self.bag_metadata(), Dumper=PlainDumper, sort_keys=False)
         with self._writing():
             self._finish_chunk()
             if self._chunk:  # schemas/channels of a chunk without messages: outside chunks

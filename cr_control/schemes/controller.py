@@ -406,8 +406,9 @@ class Controller(ABC):
         start = time.perf_counter()
         values = self.values
         out = None
-        if not admit_state(self.n_state, values["max_joint_position"],
-                           values["max_joint_velocity"], stamp, q, v, force):
+        admitted = admit_state(self.n_state, values["max_joint_position"],
+                               values["max_joint_velocity"], stamp, q, v, force)
+        if not admitted:
             reason = self._refused_state(stamp, q, v, force)
         else:
             if self._t0 is None:
@@ -429,8 +430,8 @@ class Controller(ABC):
             out = self._held_output()
         else:
             self._last = out
-            if not self.commanding:
-                self._brake(out, q, v)
+        if not self.commanding and admitted:
+            self._brake(out, q, v)      # the law gave up: brake from the measured state
         out.status[self._i_compute] = (time.perf_counter() - start) * 1e6
         return out
 
