@@ -21,6 +21,9 @@ from cr_sim.plants.registry import make_plant
 #: The packages whose numba kernels are cached beside their sources.
 KERNEL_PACKAGES = ("cr_control", "cr_sim")
 DIGEST_NAME = "kernel-sources.sha256"
+#: The sub-packages that hold kernels and everything a kernel may call or read as a global
+#: (nodes, tools, analysis and experiments hold none): an edit elsewhere keeps the caches.
+KERNEL_LAYERS = frozenset({"core", "models", "schemes", "plants"})
 
 
 def _package_dirs() -> list[Path]:
@@ -32,12 +35,15 @@ def clear_stale_kernels() -> bool:
 
     numba keys a cached kernel on its own module's file only: a kernel that calls a
     function of another module that has changed since (a building block) would be loaded
-    stale. One digest of all the packages' sources, kept beside them, tells; returns True
-    if caches were cleared. Nothing happens where the packages are read-only."""
+    stale. One digest of the kernel layers' sources (:data:`KERNEL_LAYERS`), kept beside
+    them, tells; returns True if caches were cleared. Nothing happens where the packages are
+    read-only."""
     dirs = _package_dirs()
     digest = hashlib.sha256()
     for d in dirs:
         for path in sorted(d.rglob("*.py")):
+            if path.relative_to(d).parts[0] not in KERNEL_LAYERS:
+                continue
             digest.update(f"{d.name}/{path.relative_to(d).as_posix()}".encode())
             digest.update(path.read_bytes())
     marker = dirs[0] / "__pycache__" / DIGEST_NAME
