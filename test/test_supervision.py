@@ -1,0 +1,161 @@
+"""The supervision objects alone, without ROS (milliseconds): the one rate-limited logger
+and the one single-source guard both nodes use."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from cr_control.supervision.rate_limited_log import RateLimitedLog, logger_emit
+from cr_control.supervision.single_source import SingleSource, expected_names, full_node_name
+
+PLANT, INTRUDER, SPARE = b"P" * 16, b"I" * 16, b"S" * 16
+
+
+class Clock:
+    def __init__(self, t: float = 100.0) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def recording_log(period_s: float = 5.0, clock=None):
+    lines: list[tuple[str, str]] = []
+    log = RateLimitedLog(lambda severity, text: lines.append((severity, text)), period_s,
+                         clock or Clock())
+    return log, lines
+
+
+def test_one_line_per_key_and_period_with_the_suppressed_count():
+    clock = Clock()
+    log, lines = recording_log(5.0, clock)
+    built = []
+    for i in range(100):                      # 100 faults in 1 s: one line
+        clock.t += 0.01
+        log("size", "error", lambda i=i: built.append(i) or f"fault {i}")
+    assert lines == [("error", "fault 0")] and built == [0]   # texts built only when emitted
+    assert log("other", "warn", "another key") and len(lines) == 2
+    clock.t += 5.0
+    assert log("size", "error", "fault again")
+    assert lines[-1] == ("error", "fault again (99 more suppressed since the last such line)")
+    assert log.count["size"] == 101 and log.suppressed("size") == 0
+    clock.t += 1.0
+    assert not log("size", "error", "x") and log.suppressed("size") == 1
+
+
+def test_an_infinite_period_logs_each_key_once_and_a_negative_one_is_refused():
+    log, lines = recording_log(math.inf)
+    for _ in range(3):
+        log("once", "warn", "only once")
+    assert lines == [("warn", "only once")] and log.suppressed("once") == 2
+    with pytest.raises(ValueError):
+        RateLimitedLog(lambda s, t: None, -1.0)
+    with pytest.raises(ValueError):
+        RateLimitedLog(lambda s, t: None, math.nan)
+
+
+def test_logger_emit_reaches_warn_or_warning():
+    class Py:                                 # logging.Logger has warning, not warn
+        def __init__(self):
+            self.got = []
+
+        def warning(self, text):
+            self.got.append(("warning", text))
+
+        def error(self, text):
+            self.got.append(("error", text))
+
+    py = Py()
+    emit = logger_emit(py)
+    emit("warn", "a")
+    emit("error", "b")
+    assert py.got == [("warning", "a"), ("error", "b")]
+
+
+def test_names_of_a_parameter():
+    assert expected_names("/plant") == {"/plant"}
+    assert expected_names(" plant , /ns/robot,") == {"/plant", "/ns/robot"}
+    assert expected_names("") == frozenset() and expected_names([]) == frozenset()
+    assert full_node_name("/", "plant") == "/plant" and full_node_name("/ns", "c") == "/ns/c"
+
+
+def guard(expected=("/plant",), silence=2.0, graph=None, clock=None):
+    graph = {PLANT: "/plant", INTRUDER: "/intruder"} if graph is None else graph
+    lookups: list[bytes] = []
+    log, lines = recording_log(5.0, clock)
+
+    def name_of(gid):
+        lookups.append(gid)
+        return graph.get(gid)
+
+    g = SingleSource("/joint_states", expected, silence, name_of, log, what="states",
+                     parameter="state_source", counter="states_foreign", clock=clock or Clock())
+    return g, lookups, lines
+
+
+def test_a_silent_publisher_is_never_followed_the_first_valid_one_is():
+    g, _, _ = guard(expected=())
+    # an intruder matched first but silent: nothing follows from matching alone
+    assert g.source is None
+    assert g.admit(PLANT, 0.0)
+    g.heard(PLANT, 0.0)
+    assert g.source == PLANT and g.refused == 0
+
+
+def test_only_the_expected_node_is_followed_and_each_refusal_counted():
+    clock = Clock()
+    g, lookups, lines = guard(clock=clock)
+    for k in range(50):                       # the intruder's states come first
+        assert not g.admit(INTRUDER, 0.001 * k)
+    assert g.source is None and g.refused == g.unexpected == 50
+    assert lookups == [INTRUDER]              # looked up once, cached
+    assert len([1 for _, text in lines if "refused unread" in text]) == 1
+    assert "only '/plant' is followed (parameter state_source)" in lines[0][1]
+    assert "node '/intruder'" in lines[0][1] and "counted in states_foreign" in lines[0][1]
+    assert g.admit(PLANT, 0.05)
+    g.heard(PLANT, 0.05)
+    assert g.source == PLANT and lines[-1] == ("info", f"/joint_states: following node "
+                                                       f"'/plant' (gid {PLANT.hex()})")
+    # followed: the intruder is foreign now (refused without a lookup), even when the
+    # plant falls silent: the rule still refuses its node
+    assert not g.admit(INTRUDER, 0.06)
+    assert not g.admit(INTRUDER, 10.0)
+    assert g.refused == 52 and g.unexpected == 51 and g.source == PLANT
+
+
+def test_an_unknown_gid_is_refused_and_looked_up_again_only_after_a_while():
+    clock = Clock()
+    graph: dict[bytes, str] = {}
+    g, lookups, _ = guard(graph=graph, clock=clock)
+    for _ in range(1000):                     # a flood before the graph knows the plant
+        assert not g.admit(PLANT, 0.0)
+    assert len(lookups) == 1 and g.unexpected == 1000
+    graph[PLANT] = "/plant"
+    assert not g.admit(PLANT, 0.0)            # not asked again yet
+    clock.t += 0.06
+    assert g.admit(PLANT, 0.0) and len(lookups) == 2
+    g.known(SPARE, "/plant")                  # named by the periodic graph check: no lookup
+    assert g.name(SPARE) == "/plant" and len(lookups) == 2
+
+
+def test_handover_only_after_the_silence_and_only_to_an_expected_node():
+    g, _, lines = guard(expected=("/plant",), graph={PLANT: "/plant", SPARE: "/plant",
+                                                     INTRUDER: "/intruder"})
+    g.heard(PLANT, 0.0) if g.admit(PLANT, 0.0) else None
+    assert not g.admit(SPARE, 1.0)            # a restarted plant while the first is alive
+    assert g.refused == 1 and g.unexpected == 0
+    assert not g.admit(INTRUDER, 2.5)         # the first silent 2.5 s: still not the intruder
+    assert g.admit(SPARE, 2.5)
+    g.heard(SPARE, 2.5)
+    assert g.source == SPARE and g.handovers == 1
+    assert lines[-1][0] == "warn" and "delivered nothing for 2.5 s" in lines[-1][1]
+    assert not g.admit(PLANT, 2.6)            # the old one is foreign now
+
+
+def test_a_publisher_that_cannot_be_known_is_admitted():
+    g, _, _ = guard()
+    assert g.admit(None, 0.0) and g.admit(b"", 0.0)
+    g.heard(None, 0.0)
+    assert g.source is None and g.refused == 0
