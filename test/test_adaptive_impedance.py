@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from cr_control.offline import run, run_scheme
 from cr_control.schemes.registry import make_controller
-from cr_control.tools.offline import run, run_scheme
 from cr_sim.plants.registry import make_plant
 
 

@@ -165,7 +165,7 @@ def _require(scheme: str) -> None:
 @pytest.fixture(scope="module")
 def robust_run():
     _require(chapter6.ROBUST_SCHEME)
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
 
     plant = {"joint_stiffness": [10.0, 10.0], "motor_inertia": [0.5, 0.5]}
     return run_scheme(chapter6.ROBUST_SCHEME, 1.5, plant_overrides=plant), plant
@@ -174,7 +174,7 @@ def robust_run():
 @pytest.fixture(scope="module")
 def sp_runs():
     _require(chapter6.SP_SCHEME)
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
 
     plant = {"joint_stiffness": [300.0, 300.0], "motor_inertia": [1.0, 1.0]}
     return (run_scheme(chapter6.SP_SCHEME, 1.5, plant_overrides=plant),

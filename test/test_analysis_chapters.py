@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cr_control.analysis import analyze, chapter2, chapter4
-from cr_control.tools.offline import run_scheme
+from cr_control.offline import run_scheme
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

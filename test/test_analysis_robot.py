@@ -19,9 +19,9 @@ import pytest
 from ros_probe import next_domain
 from test_analysis import png_ok, write_session
 
+from cr_control import robots
 from cr_control.analysis import analyze, robot
-from cr_control.tools import robots
-from cr_control.tools.offline import run_scheme
+from cr_control.offline import run_scheme
 
 SCHEME, ROBOT, DURATION = "impedance", "panda_ft", 1.5
 ROBOT_METRICS = ("normal_force_mean_last_half_N", "normal_force_err_rms_last_half_N",

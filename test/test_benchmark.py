@@ -14,10 +14,11 @@ import pytest
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from cr_control import robots
 from cr_control.core import topics
 from cr_control.core.ros_env import DOMAIN_SPAN, FIRST_DOMAIN
 from cr_control.tools import benchmark as bm
-from cr_control.tools import echo_pair, robots
+from cr_control.tools import echo_pair
 from cr_control.tools.echo_pair import parse_result
 
 #: The Panda layout's echo pair messages (9 joints, 7 commanded).
@@ -496,8 +497,8 @@ def test_echo_pair_messages_of_the_pandas_shape():
 
 def test_panda_echo_shape_is_the_panda_plants():
     """The echo pair's 9/7 joints are what the Panda's plant publishes and is commanded."""
+    from cr_control import robots
     from cr_control.models.urdf import package_share
-    from cr_control.tools import robots
     from cr_sim.plants.registry import make_plant
 
     try:

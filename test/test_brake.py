@@ -29,10 +29,10 @@ import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 
+from cr_control import robots
 from cr_control.core.parameters import ParameterError
 from cr_control.models.brake import MAX_BRAKE_STEP, brake_torque, stop_position
 from cr_control.models.urdf import resolve_urdf_file
-from cr_control.tools import robots
 from cr_sim.plant_node import NODE_PARAMETERS, command_limiter, initial_command
 from cr_sim.plants.registry import SCENARIOS, make_plant
 

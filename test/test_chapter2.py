@@ -10,12 +10,12 @@ import pinocchio as pin
 import pytest
 
 from cr_control.core.parameters import resolve
+from cr_control.offline import run
 from cr_control.schemes.blocks import rbf_network
 from cr_control.schemes.closed_chain import moving_object_model as mo
 from cr_control.schemes.closed_chain.moving_object_adaptive import MovingObjectAdaptiveController
 from cr_control.schemes.closed_chain.moving_object_nn import MovingObjectNNController
 from cr_control.schemes.registry import make_controller
-from cr_control.tools.offline import run
 from cr_sim.models.constrained_dynamics import (
     ConstrainedModel,
     PointOnPlane,
@@ -358,7 +358,7 @@ def test_lockstep_over_ros_matches_offline(scheme, fields, tmp_path):
     from ros_probe import next_domain, recorded_arrays
 
     from cr_control.analysis.analyze import load_session
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
     from cr_control.tools.session import Session, SessionConfig
 
     cfg = SessionConfig(scheme=scheme, duration=2.0, mode="lockstep", out=tmp_path,

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from cr_control.core.parameters import resolve
+from cr_control.offline import run
 from cr_control.schemes.blocks import backstepping as bs
 from cr_control.schemes.blocks import diophantine
 from cr_control.schemes.force.backstepping_force import INITIAL_ESTIMATES, TRUE_THETA
 from cr_control.schemes.force.mrac_force import TRUE_THETA_F_CASE1
 from cr_control.schemes.registry import make_controller
-from cr_control.tools.offline import run
 from cr_sim.plants import dynamic_constraint as dc
 from cr_sim.plants.registry import make_plant
 

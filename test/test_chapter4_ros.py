@@ -188,7 +188,7 @@ def test_lockstep_over_ros_matches_offline(scheme, fields, tmp_path):
     offline loop, rows matched by stamp (a loaded recorder may miss messages; the loop
     cannot: the plant steps only on a command)."""
     from cr_control.analysis.analyze import load_session
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
     from cr_control.tools.session import Session, SessionConfig
 
     cfg = SessionConfig(scheme=scheme, duration=LOCKSTEP_S, mode="lockstep", out=tmp_path,

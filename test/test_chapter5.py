@@ -38,10 +38,10 @@ from cr_control.analysis.chapter5 import (
     plot_chapter5,
 )
 from cr_control.core.parameters import ParameterError
+from cr_control.offline import run, run_scheme
 from cr_control.schemes.blocks.fuzzy import mu_negative, mu_positive, rule_set_2_damping
 from cr_control.schemes.blocks.task_space import task_dynamics, task_frame
 from cr_control.schemes.registry import make_controller
-from cr_control.tools.offline import run, run_scheme
 from cr_sim.plants.registry import make_plant
 
 SCHEMES = ("impedance", "fuzzy_unidirectional")

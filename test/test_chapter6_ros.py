@@ -37,7 +37,7 @@ def test_lockstep_over_ros_matches_offline(scheme, settings, fields, tmp_path):
     from ros_probe import next_domain, recorded_arrays
 
     from cr_control.analysis.analyze import load_session
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
     from cr_control.tools.session import Session, SessionConfig
 
     cfg = SessionConfig(scheme=scheme, duration=DURATION, mode="lockstep", out=tmp_path,

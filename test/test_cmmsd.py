@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from cr_control.core.parameters import resolve
+from cr_control.offline import run
 from cr_control.schemes.registry import make_controller
-from cr_control.tools.offline import run
 from cr_sim.plants import cmmsd
 from cr_sim.plants.registry import make_plant
 

@@ -15,9 +15,9 @@ import pytest
 from robot_data import needs_erd
 from ros_probe import next_domain
 
+from cr_control import robots
+from cr_control.offline import robot_period, run_scheme
 from cr_control.schemes.blocks import contact_guard
-from cr_control.tools import robots
-from cr_control.tools.offline import robot_period, run_scheme
 
 pytestmark = needs_erd
 

@@ -27,13 +27,13 @@ from rclpy.context import Context
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 
+from cr_control import offline
 from cr_control.core import topics
 from cr_control.nodes import controller_node
 from cr_control.nodes.controller_node import SOURCE_SILENCE_S, ControllerNode
 from cr_control.nodes.raw_messages import joint_state_max_bytes
 from cr_control.schemes.controller import ACCEPTED, COMMAND_NOT_FINITE, accept_cycle
 from cr_control.schemes.registry import make_controller
-from cr_control.tools import offline
 from cr_sim.plants.registry import make_plant
 
 PERIOD = 1e-3

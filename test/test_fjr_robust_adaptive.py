@@ -31,13 +31,13 @@ import numpy as np
 import pytest
 
 from cr_control.core.parameters import resolve
+from cr_control.offline import run
 from cr_control.schemes.flexible_joint.fjr_robust_adaptive import (
     STATE,
     FJRRobustAdaptiveController,
     motor_acceleration_filter,
 )
 from cr_control.schemes.flexible_joint.flexible_joint_model import P_HAT_0
-from cr_control.tools.offline import run
 from cr_sim.plants.registry import make_plant
 
 CLS = FJRRobustAdaptiveController

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from cr_control.core.parameters import resolve
+from cr_control.offline import run
 from cr_control.schemes.flexible_joint import fjr_singular_perturbation as sp
 from cr_control.schemes.flexible_joint.fjr_singular_perturbation import FJRSingularPerturbationController
 from cr_control.schemes.flexible_joint.flexible_joint_model import TRUE_P, mass_regressor_into
 from cr_control.tools.config_files import node_yaml
-from cr_control.tools.offline import run
 from cr_sim.plants.registry import make_plant
 
 DURATION = 20.0

@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 from robot_data import needs_erd
 
+from cr_control import offline, robots
 from cr_control.core.parameters import resolve
 from cr_control.models.urdf import load_chain
 from cr_control.schemes.blocks import impedance_adaptation as impedance
@@ -36,7 +37,6 @@ from cr_control.schemes.blocks import wrist_sensor as ws
 from cr_control.schemes.impedance.adaptive_impedance import AdaptiveImpedanceController
 from cr_control.schemes.impedance.base import chain_reach
 from cr_control.schemes.registry import make_controller
-from cr_control.tools import offline, robots
 
 pytestmark = needs_erd
 

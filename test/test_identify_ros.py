@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from robot_data import needs_erd
 
+from cr_control import robots
 from cr_control.core import ros_yaml
-from cr_control.tools import robots
 
 pytestmark = [pytest.mark.ros, needs_erd]
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from cr_control.offline import run
 from cr_control.schemes.force import mrac_force as mf
 from cr_control.schemes.registry import make_controller
-from cr_control.tools.offline import run
 from cr_sim.plants.registry import make_plant
 
 

@@ -24,6 +24,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from ros_probe import RosProbe, next_domain
 
+from cr_control import robots
 from cr_control.core import parameters
 from cr_control.core.parameters import (
     BOUNDED_KINDS,
@@ -39,7 +40,6 @@ from cr_control.nodes.ros_parameters import REFUSED_WARN_EVERY_S, declare, polic
 from cr_control.schemes.blocks.task_space import task_model
 from cr_control.schemes.impedance.base import TaskSpaceController
 from cr_control.schemes.registry import SCHEMES, controller_class, make_controller
-from cr_control.tools import robots
 from cr_sim.plant_node import plant_parameters
 from cr_sim.plants.registry import SCENARIOS
 

@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
+from cr_control import offline, robots
 from cr_control.experiments.wiping import Case, run_case
 from cr_control.schemes.registry import make_controller
-from cr_control.tools import offline, robots
 from cr_sim.plants.registry import make_plant
 
 PROFILES = ("panda", "ur5")

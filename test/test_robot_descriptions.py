@@ -33,6 +33,7 @@ import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 
+from cr_control import robots
 from cr_control.core.parameters import ParameterError
 from cr_control.models.urdf import (
     MAX_LINKS,
@@ -43,7 +44,6 @@ from cr_control.models.urdf import (
     resolve_urdf_file,
 )
 from cr_control.schemes.registry import make_controller
-from cr_control.tools import robots
 from cr_sim.loop_stats import SAFE_STOP_CONTACT_FORCE, SAFE_STOP_JOINT_VELOCITY
 from cr_sim.plant_node import reflex
 from cr_sim.plants.registry import SCENARIOS, make_plant

@@ -1,4 +1,4 @@
-"""The five task-space schemes on the robot profiles (cr_control.tools.robots: the Panda
+"""The five task-space schemes on the robot profiles (cr_control.robots: the Panda
 through franka_ros2 with Franka's estimated wrench or a wrist sensor, the UR5 through
 ur_robot_driver's effort interface at 500 Hz with its TCP sensor or a wrist sensor; each
 robot compensates its own gravity, the UR5 its joint friction too), wiping a table with
@@ -32,11 +32,11 @@ import numpy as np
 import pytest
 from ros_probe import next_domain
 
+from cr_control import robots
 from cr_control.experiments.wiping import Case, run_case
 from cr_control.models.urdf import load_chain
+from cr_control.offline import robot_period, run_scheme
 from cr_control.schemes.blocks.wrist_sensor import ZERO_START_WINDOW_S
-from cr_control.tools import robots
-from cr_control.tools.offline import robot_period, run_scheme
 
 PROFILES = tuple(robots.ROBOTS)
 CASES = [(r, s) for r in PROFILES for s in robots.TASK_SPACE_SCHEMES]

@@ -23,12 +23,12 @@ from cr_control.core.parameters import resolve
 from cr_control.models import spatial_chain
 from cr_control.models.arm_model import TwoLinkArm
 from cr_control.models.spatial_chain import HEADER, INERTIA, MASS, PER_JOINT
+from cr_control.offline import OfflineRun, run_scheme
 from cr_control.schemes.blocks.sliding_impedance import SlidingCompensator, boundary_layer_sign
 from cr_control.schemes.impedance import nn_adaptive_impedance
 from cr_control.schemes.impedance.robust_adaptive_impedance import RobustAdaptiveImpedanceController
 from cr_control.schemes.registry import SCHEMES, controller_class, make_controller
 from cr_control.tools.config_files import params_yaml
-from cr_control.tools.offline import OfflineRun, run_scheme
 from cr_sim.plants.registry import make_plant
 
 DELTA = 0.05  # boundary layer of both schemes (3.5.2, 3.5.3)

@@ -5,7 +5,7 @@ import pytest
 from ros_probe import next_domain
 
 from cr_control.analysis.analyze import load_session, metrics
-from cr_control.tools.offline import run_scheme
+from cr_control.offline import run_scheme
 from cr_control.tools.session import Session, SessionConfig
 
 pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)

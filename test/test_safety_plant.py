@@ -48,7 +48,7 @@ def test_effort_limits_come_from_the_urdf_and_the_rate_limit_from_libfranka():
 
 
 def test_every_scenario_gets_limits_or_is_left_unbounded_with_a_warning():
-    from cr_control.tools import robots
+    from cr_control import robots
     from cr_sim.plant_node import unlimited_joints
     from cr_sim.plants.registry import SCENARIOS
 

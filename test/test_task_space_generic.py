@@ -14,8 +14,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from cr_control import robots
 from cr_control.core.parameters import ParameterError
 from cr_control.models.urdf import load_chain
+from cr_control.offline import run, run_scheme
 from cr_control.schemes.blocks.task_space import (
     model_force,
     null_space_torque,
@@ -24,8 +26,6 @@ from cr_control.schemes.blocks.task_space import (
     task_model,
 )
 from cr_control.schemes.registry import controller_class, make_controller
-from cr_control.tools import robots
-from cr_control.tools.offline import run, run_scheme
 from cr_sim.plants.registry import make_plant
 
 GOLDEN = json.loads((Path(__file__).parent / "data" / "thesis_task_space_golden.json").read_text())

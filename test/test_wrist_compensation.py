@@ -28,10 +28,11 @@ import numpy as np
 import pytest
 from robot_data import needs_erd
 
+from cr_control import offline, robots
 from cr_control.core.parameters import ParameterError
 from cr_control.schemes.blocks import wrist_sensor as ws
 from cr_control.schemes.registry import make_controller
-from cr_control.tools import identify_tool, offline, robots
+from cr_control.tools import identify_tool
 from cr_sim.plants.registry import make_plant
 
 pytestmark = needs_erd

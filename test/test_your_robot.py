@@ -42,11 +42,11 @@ from ros_probe import RosProbe, start_node, stop_node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from cr_control import robots
 from cr_control.core import topics
 from cr_control.core.paths import config_file
+from cr_control.offline import run_scheme
 from cr_control.schemes.blocks.wrist_sensor import ZERO_START_WINDOW_S
-from cr_control.tools import robots
-from cr_control.tools.offline import run_scheme
 from cr_sim.plants.registry import make_plant
 
 pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)

@@ -21,9 +21,9 @@ from ros_probe import RosProbe, start_node, stop_node
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from cr_control import robots
 from cr_control.core import topics
 from cr_control.core.paths import config_file
-from cr_control.tools import robots
 from cr_sim.plants.registry import make_plant
 
 pytestmark = [pytest.mark.ros, needs_erd]

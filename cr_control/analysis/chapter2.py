@@ -85,7 +85,7 @@ def _build(label: str, t: np.ndarray, col: Any) -> ObjectRun:
 
 
 def from_offline(run: Any, label: str) -> ObjectRun:
-    """An ObjectRun from :class:`cr_control.tools.offline.OfflineRun`."""
+    """An ObjectRun from :class:`cr_control.offline.OfflineRun`."""
     out = _build(label, run.time - run.time[0], run.column)
     names = set(run.status_fields)
     out.estimates = {n: run.column(n) for n in ESTIMATE_FIELDS if n in names}
@@ -404,7 +404,7 @@ def compare_sessions(sessions: Sequence[Any], labels: Sequence[str],
 def offline_run(scheme: str, duration: float = 20.0, controller: dict[str, Any] | None = None,
                 plant: dict[str, Any] | None = None, label: str | None = None) -> ObjectRun:
     """Run ``scheme`` offline on the moving-object plant and return its ObjectRun."""
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
 
     result = run_scheme(scheme, duration, controller_overrides=controller, plant_overrides=plant)
     return from_offline(result, label or SHORT.get(scheme, scheme))

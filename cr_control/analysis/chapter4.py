@@ -146,7 +146,7 @@ def _force_run(label: str, scheme: str, t: np.ndarray, col: Any, fields: Sequenc
 
 def force_from_offline(run: Any, label: str, plant: dict[str, Any] | None = None,
                        controller: dict[str, Any] | None = None) -> ForceRun:
-    """A ForceRun from :class:`cr_control.tools.offline.OfflineRun` (plant and controller:
+    """A ForceRun from :class:`cr_control.offline.OfflineRun` (plant and controller:
     the overrides it ran with, for the true values)."""
     scheme = _scheme_of(run.status_fields)
     out = _force_run(label, scheme, run.time - run.time[0], run.column, run.status_fields)
@@ -590,14 +590,14 @@ CHAIN_SIZES = (1, 2, 3)
 
 def offline_force(scheme: str, duration: float, controller: dict[str, Any] | None = None,
                   plant: dict[str, Any] | None = None, label: str | None = None) -> ForceRun:
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
 
     result = run_scheme(scheme, duration, controller_overrides=controller, plant_overrides=plant)
     return force_from_offline(result, label or scheme, plant, controller)
 
 
 def offline_chain(n: int, duration: float, plant: dict[str, Any] | None = None) -> ChainRun:
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
 
     plant = {**(plant or {}), "masses": n}
     result = run_scheme("cmmsd_backstepping", duration,

@@ -75,7 +75,7 @@ def is_chapter5(status: dict[str, np.ndarray] | Sequence[str]) -> bool:
 
 def from_offline(run: Any, label: str, controller_values: dict[str, Any],
                  plant_values: dict[str, Any]) -> ContactRun:
-    """A ContactRun from :class:`cr_control.tools.offline.OfflineRun` and the converted
+    """A ContactRun from :class:`cr_control.offline.OfflineRun` and the converted
     parameter values of its controller and plant."""
     col = run.column
     t = run.time - run.time[0]
@@ -308,8 +308,8 @@ def offline_run(scheme: str, duration: float = 10.0, plant: dict[str, Any] | Non
                 controller: dict[str, Any] | None = None, label: str | None = None) -> ContactRun:
     """Run ``scheme`` offline on the circular surface and return its ContactRun."""
     from cr_control.core.parameters import resolve
+    from cr_control.offline import run_scheme
     from cr_control.schemes.registry import controller_class
-    from cr_control.tools.offline import run_scheme
     from cr_sim.plants import circular_surface
 
     result = run_scheme(scheme, duration, controller_overrides=controller, plant_overrides=plant)

@@ -83,8 +83,8 @@ def offline_run(scheme: str, duration: float = 20.0, controller: dict[str, Any] 
     """Run ``scheme`` offline on its thesis plant (with ``plant`` overrides) and return its
     FlexRun, K_s and slow_control taken from the resolved parameters."""
     from cr_control.core.parameters import resolve
+    from cr_control.offline import run_scheme, scheme_plant_overrides
     from cr_control.schemes.registry import controller_class
-    from cr_control.tools.offline import run_scheme, scheme_plant_overrides
     from cr_sim.plants import flexible_joint_surface
 
     result = run_scheme(scheme, duration, controller_overrides=controller, plant_overrides=plant)

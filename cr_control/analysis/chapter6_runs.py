@@ -153,7 +153,7 @@ def _build(label: str, t: np.ndarray, col: Callable[[str], np.ndarray], names: A
 
 def from_offline(run: Any, label: str, plant: dict[str, Any] | None = None,
                  controller: dict[str, Any] | None = None) -> FlexRun:
-    """A FlexRun from :class:`cr_control.tools.offline.OfflineRun`; ``plant`` and
+    """A FlexRun from :class:`cr_control.offline.OfflineRun`; ``plant`` and
     ``controller`` (parameter values, where known) give K_s and slow_control."""
     names = set(run.status_fields)
     q_ld = (np.column_stack([run.column("q_ld_1"), run.column("q_ld_2")])

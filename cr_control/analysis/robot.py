@@ -1,6 +1,6 @@
 """Robot sessions: a task-space scheme on a URDF arm (Panda, UR5) wiping a table.
 
-A robot session (``cr_session --robot NAME``, :mod:`cr_control.tools.robots`) keeps a normal
+A robot session (``cr_session --robot NAME``, :mod:`cr_control.robots`) keeps a normal
 force on a plane through the tool's start position (normal +z) while tracking a circle in
 it. Its status has a z axis and the orientation error ``e_rot_*`` (see
 :func:`cr_control.schemes.blocks.task_space.status_fields`); :func:`is_robot` tells such a

@@ -1,7 +1,7 @@
 """One point of a sweep: the offline loop, then the metrics ``cr_analyze`` prints.
 
-The run is :func:`cr_control.tools.offline.run` (bit-for-bit deterministic) of the scheme and
-plant :func:`cr_control.tools.offline.build_scheme` makes; its columns are handed to
+The run is :func:`cr_control.offline.run` (bit-for-bit deterministic) of the scheme and
+plant :func:`cr_control.offline.build_scheme` makes; its columns are handed to
 :func:`cr_control.analysis.analyze.metrics` as a session would be, so every metric has the
 name and the definition of ``cr_analyze``'s (e.g. ``pos_err_rms_last_half_m``); a robot's
 run is judged, as ``cr_analyze`` judges a robot session, by the plant's true contact force
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from cr_control import offline
 from cr_control.analysis import analyze, chapter5, robot
 from cr_control.experiments import chapter_metrics
-from cr_control.tools import offline
 
 #: Metrics of a recording's bookkeeping or of the wall clock: not figures of a point.
 LEFT_OUT = ("controller", "samples", "duration_s", "data_warnings")

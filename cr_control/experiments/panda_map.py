@@ -1,7 +1,7 @@
 """The Panda wiping task's robustness map (issue 21 item 5, with issue 20): force and path
 error against the table's stiffness K_e and the tool's mass.
 
-``adaptive_impedance`` (3.32) on the Panda's wiping task (:mod:`cr_control.tools.robots`: a
+``adaptive_impedance`` (3.32) on the Panda's wiping task (:mod:`cr_control.robots`: a
 10 N circle on a table of K_e = 5000 N/m, a 0.7 kg tool on the wrist sensor, which the
 controller compensates with its own ``tool_mass`` = 0.7 kg). The map varies the plant only:
 ``plant.stiffness`` (x0.1 ... x10 of 5000 N/m) and ``plant.tool_mass`` (the payload the arm

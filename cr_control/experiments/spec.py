@@ -159,7 +159,7 @@ def spread(param: Param, value: Any, name: str) -> Any:
 
 def targets(scheme: str, robot: str | None) -> Targets:
     """The parameters of ``scheme``'s offline run (on ``robot``'s wiping task if given)."""
-    from cr_control.tools import offline, robots
+    from cr_control import offline, robots
     from cr_sim.plants.registry import SCENARIOS
 
     if robot is None:

@@ -1,6 +1,6 @@
 """The wiping task judged as a robot user judges it: by the true contact force and the path.
 
-One case runs a task-space scheme on a robot profile (:mod:`cr_control.tools.robots`) in the
+One case runs a task-space scheme on a robot profile (:mod:`cr_control.robots`) in the
 offline loop at the profile's rate, optionally on a 10x stiffer table, started
 ``clearance`` above it, with the controller's model scaled, or with the controller's
 gravity setting the opposite of the robot's (a mismatch). Its figures (:func:`wiping_metrics`):
@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from cr_control.tools import offline, robots
+from cr_control import offline, robots
 
 #: The stiff table: this many times the default contact stiffness.
 STIFF_FACTOR = 10.0

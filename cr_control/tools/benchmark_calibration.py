@@ -83,7 +83,7 @@ def warm_up(robots: Sequence[str] = ()) -> None:
     """A few offline cycles of the scheme in this process, on its thesis plant and on each of
     ``robots``: compiled kernels are built and cached (numba ``cache=True``) before the runs,
     so that no run's first cycle compiles."""
-    from cr_control.tools.offline import run_scheme
+    from cr_control.offline import run_scheme
 
     run_scheme(SCHEME, 0.01)
     for robot in robots:

@@ -80,7 +80,7 @@ class Layout:
 
 
 #: The real-time layouts, in the order they run. The Panda publishes 9 joints (7 arm + 2
-#: locked fingers, :mod:`cr_control.tools.robots`) and is commanded 7: the echo pair carries
+#: locked fingers, :mod:`cr_control.robots`) and is commanded 7: the echo pair carries
 #: messages of that shape, with the recorder as beside the thesis arm; issue 20 (item 7)
 #: asks for issue 6's recorder targets and the controller's compute p50 <= 100 us there. The
 #: UR5 runs at ur_robot_driver's 500 Hz (6 joints), its echo pair at the same rate.

@@ -16,9 +16,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from cr_control import robots
 from cr_control.core.parameters import MATRIX_KINDS, SCALAR_KINDS, VECTOR_KINDS, Param, describe
 from cr_control.schemes.registry import controller_class
-from cr_control.tools import robots
 
 
 def yaml_float(x: float) -> str:
@@ -68,7 +68,7 @@ def node_yaml(node: str, specs: list[Param], title: str,
 
 def params_yaml(scheme: str, robot_name: str | None = None) -> str:
     """The params file of the controller ``scheme`` (node name = scheme name): its thesis
-    defaults, or the wiping task on ``robot_name`` (cr_control.tools.robots)."""
+    defaults, or the wiping task on ``robot_name`` (cr_control.robots)."""
     if robot_name is None:
         return node_yaml(scheme, controller_class(scheme).parameters(), scheme)
     values = robots.controller_values(robots.robot(robot_name), scheme)

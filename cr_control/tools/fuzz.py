@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from cr_control.core.ros_env import claim_free_domain, isolated_env
-from cr_control.tools.robots import ROBOTS
+from cr_control.robots import ROBOTS
 
 #: A case's max |q'| may exceed the baseline run's by this factor plus SPEED_FLOOR.
 SPEED_MARGIN = 1.2

@@ -19,8 +19,8 @@ At each pose the arm settles for ``--settle`` s, then the wrench and g_i are ave
 readings is 0.006 N). Static: the tool's inertial wrench is neglected (the arm is still).
 
 Simulator (``--robot panda|ur5``, the default): the offline loop
-(:mod:`cr_control.tools.offline`) with the robot's plant (its wrist sensor: tool, bias,
-noise, :data:`cr_control.tools.robots.SENSOR`) in free space and ``adaptive_impedance``
+(:mod:`cr_control.offline`) with the robot's plant (its wrist sensor: tool, bias,
+noise, :data:`cr_control.robots.SENSOR`) in free space and ``adaptive_impedance``
 holding each pose through :meth:`set_target_pose`, the law given no force (the pose hold
 needs none); the truth is known there, so the errors are printed. R_i comes from the
 measured joints through the controller's model (Pinocchio), as on a robot.
@@ -51,10 +51,10 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
+from cr_control import robots
 from cr_control.core.parameters import ParameterError
 from cr_control.core.ros_env import domain_id_arg
 from cr_control.schemes.blocks.wrist_sensor import frame_rotation
-from cr_control.tools import robots
 from cr_control.tools.param_tool import full_node_name, timeout_seconds
 
 #: Tilt of the flange from the home pose (degrees) for the poses.

@@ -41,13 +41,13 @@ from cr_control.core.ros_env import (
     isolated_env,
 )
 from cr_control.nodes import memory_reserve
+from cr_control.robots import ROBOTS, TASK_SPACE_SCHEMES
 from cr_control.schemes.registry import (
     SCHEMES,
     controller_class,
     default_plant_overrides,
     default_scenario,
 )
-from cr_control.tools.robots import ROBOTS, TASK_SPACE_SCHEMES
 
 STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 15.0
@@ -180,7 +180,7 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
         params = {s: _load_params_file(config_file(f"{s}.yaml"))[s] for s in schemes}
         params.update(_load_params_file(config_file(f"plant_{scenario}.yaml")))
         params["plant"].update(default_plant_overrides(cfg.scheme))
-    else:                               # the robot's wiping task (cr_control.tools.robots)
+    else:                               # the robot's wiping task (cr_control.robots)
         params = {s: _load_params_file(config_file(f"robots/{cfg.robot}/{s}.yaml"))[s]
                   for s in schemes}
         params.update(_load_params_file(config_file(f"robots/{cfg.robot}/plant.yaml")))

@@ -14,15 +14,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from cr_control.schemes.controller import Controller
-from cr_control.schemes.registry import default_plant_overrides, default_scenario, make_controller
-from cr_control.tools import robots
 from cr_sim.plants.base import Plant
-from cr_sim.plants.registry import SCENARIOS, make_plant
 
 
 @dataclass
@@ -112,48 +108,3 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         rows["status"][k] = out.status
     return OfflineRun(**rows, reference_fields=list(controller.reference_fields),
                       status_fields=list(controller.status_fields))
-
-
-def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The plant parameters ``scheme``'s offline runs use: the thesis settings of the
-    registry that belong to the scenario (not the plant node's, such as command limits:
-    there is no node here), then ``overrides``."""
-    own = {p.name for p in SCENARIOS[default_scenario(scheme)][0]}
-    thesis = {k: v for k, v in default_plant_overrides(scheme).items() if k in own}
-    return {**thesis, **(overrides or {})}
-
-
-def build_scheme(scheme: str, controller_overrides: dict[str, Any] | None = None,
-                 plant_overrides: dict[str, Any] | None = None,
-                 robot: str | None = None) -> tuple[Controller, Plant]:
-    """The controller and plant :func:`run_scheme` steps: ``scheme`` on its thesis plant
-    with thesis defaults and overrides, or on ``robot``'s wiping task (the parameters of
-    config/robots/<robot>/, see :mod:`cr_control.tools.robots`)."""
-    if robot is None:
-        plant = make_plant(default_scenario(scheme), scheme_plant_overrides(scheme, plant_overrides))
-        controller = make_controller(scheme, controller_overrides)
-    else:
-        r = robots.robot(robot)
-        plant_values = {k: v for k, v in robots.plant_values(r).items() if k != "scenario"}
-        plant = make_plant(robots.plant_values(r)["scenario"], {**plant_values,
-                                                                **(plant_overrides or {})})
-        controller = make_controller(scheme, {**robots.controller_values(r, scheme),
-                                              **(controller_overrides or {})})
-    return controller, plant
-
-
-def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
-               plant_overrides: dict[str, Any] | None = None, period: float | None = None,
-               robot: str | None = None,
-               hook: Callable[[int, float, Controller, Plant], None] | None = None) -> OfflineRun:
-    """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
-    on ``robot``'s wiping task (see :func:`build_scheme`); ``period`` (s) defaults to 1 ms,
-    on a robot to its driver's rate (the plant's ``rate_hz``: 2 ms for a UR)."""
-    controller, plant = build_scheme(scheme, controller_overrides, plant_overrides, robot)
-    return run(controller, plant, duration, robot_period(robot) if period is None else period,
-               hook)
-
-
-def robot_period(robot: str | None) -> float:
-    """The control period (s) of ``robot``'s profile, 1 ms on a thesis plant."""
-    return 1e-3 if robot is None else 1.0 / robots.robot(robot).rate_hz
