@@ -112,7 +112,7 @@ def test_container_refuses_a_plant_of_the_other_interface(ros_env, tmp_path):
     params = tmp_path / "params.yaml"
     params.write_text("plant:\n  ros__parameters:\n    scenario: dynamic_constraint\n"
                       "    mode: lockstep\n")
-    proc = subprocess.run([sys.executable, "-m", "cr_control.nodes.container", "adaptive_impedance",
+    proc = subprocess.run([sys.executable, "-m", "cr_control.tools.container", "adaptive_impedance",
                            "--ros-args", "--params-file", str(params)], env=ros_env,
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1, proc.stderr[-3000:]

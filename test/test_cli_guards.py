@@ -194,7 +194,7 @@ def test_session_refuses_empty_params_file(tmp_path, ros_env, text):
 
 
 NODES = {"plant": ["cr_sim.plant_node"], SCHEME: ["cr_control.nodes.controller_node", SCHEME],
-         "container": ["cr_control.nodes.container", SCHEME], "recorder": ["cr_control.recording.recorder"]}
+         "container": ["cr_control.tools.container", SCHEME], "recorder": ["cr_control.recording.recorder"]}
 
 
 @pytest.mark.ros

@@ -280,7 +280,7 @@ def test_rogue_commands_are_clipped_or_refused_and_counted(ros_env, probe):
     "plant:\n  ros__parameters:\n    rate_hz: fast\n",          # wrong type
     "plant:\n  ros__parameters:\n    watchdog_missed_cycles: 0\n",
 ], ids=["not-yaml", "list", "wrong-type", "out-of-range"])
-@pytest.mark.parametrize("cmd", [PLANT, [sys.executable, "-m", "cr_control.nodes.container",
+@pytest.mark.parametrize("cmd", [PLANT, [sys.executable, "-m", "cr_control.tools.container",
                                          "adaptive_impedance"]], ids=["plant", "container"])
 def test_bad_params_file_is_one_line_and_an_exit_code(tmp_path, ros_env, content, cmd):
     path = tmp_path / "params.yaml"

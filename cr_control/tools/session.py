@@ -490,7 +490,7 @@ class Session:
                 if cfg.record:
                     self._start("recorder", "cr_control.recording.recorder")
                 if cfg.composed:
-                    self._start(main, "cr_control.nodes.container", cfg.scheme)
+                    self._start(main, "cr_control.tools.container", cfg.scheme)
                 else:
                     for scheme in session_schemes(cfg):
                         self._start(scheme, "cr_control.nodes.controller_node", scheme)

@@ -5,7 +5,7 @@ sharing one EventsExecutor, for the lowest state -> command latency. The process
 when the plant finishes its ``duration``, or with code 1 when the controller refuses the
 plant (a scenario of the other command interface, see controller_node).
 
-    python -m cr_control.nodes.container SCHEME [--ros-args --params-file FILE ...]
+    python -m cr_control.tools.container SCHEME [--ros-args --params-file FILE ...]
 """
 
 from __future__ import annotations
