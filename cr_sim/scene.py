@@ -26,6 +26,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from cr_sim.models import contact3d, surfaces
+from cr_sim.plants.arm_on_surface import ArmOnSurface
+from cr_sim.plants.flexible_joint_surface import FlexibleJointSurface
+from cr_sim.plants.moving_object import OBJECT_FRAME, MovingObjectPlant
+from cr_sim.plants.urdf_surface import URDFSurface
+
 #: Half length (m) of the drawn lines and half side of the drawn plane patches.
 HALF_EXTENT = 0.6
 #: Segments of a drawn circle.
@@ -142,12 +148,6 @@ class Scene:
 
 def scene_of(plant) -> Scene | None:
     """The scene of a cr_sim plant (module docstring), None for one with nothing to draw."""
-    from cr_sim.models import contact3d, surfaces
-    from cr_sim.plants.arm_on_surface import ArmOnSurface
-    from cr_sim.plants.flexible_joint_surface import FlexibleJointSurface
-    from cr_sim.plants.moving_object import OBJECT_FRAME, MovingObjectPlant
-    from cr_sim.plants.urdf_surface import URDFSurface
-
     frame = getattr(plant, "base_frame", None) or plant.wrench_frame
     if isinstance(plant, ArmOnSurface):
         s = plant.surface

@@ -34,6 +34,11 @@ from typing import Any
 
 import numpy as np
 
+from cr_control.analysis import chapter2 as ch2
+from cr_control.analysis import chapter4 as ch4
+from cr_control.analysis import chapter6_metrics as m6
+from cr_control.analysis import chapter6_runs as r6
+
 #: Start-up left out of the "after 1 s" figures (s).
 STARTUP_S = 1.0
 #: The "late" window: the last quarter of the run.
@@ -60,8 +65,6 @@ def _late(t: np.ndarray) -> np.ndarray:
 
 def chapter2(run: Any, scheme: str) -> dict[str, float]:
     """The chapter 2 figures of an offline run (module docstring)."""
-    from cr_control.analysis import chapter2 as ch2
-
     r = ch2.from_offline(run, scheme)
     t = r.time
     first, late, after = t < STARTUP_S, _late(t), t >= STARTUP_S
@@ -90,8 +93,6 @@ def chapter2(run: Any, scheme: str) -> dict[str, float]:
 
 def chapter4(run: Any, plant: dict[str, Any], controller: dict[str, Any]) -> dict[str, float]:
     """The chapter 4 force figures of an offline run (module docstring)."""
-    from cr_control.analysis import chapter4 as ch4
-
     r = ch4.force_from_offline(run, "run", plant, controller)
     out = {k: float(v) for k, v in ch4.force_metrics(r).items()}
     names = [n for n in r.estimates if n in r.true]
@@ -110,8 +111,6 @@ def chapter4(run: Any, plant: dict[str, Any], controller: dict[str, Any]) -> dic
 
 def appendix_c(run: Any, plant: dict[str, Any]) -> dict[str, float]:
     """The appendix C chain figures of an offline run (module docstring)."""
-    from cr_control.analysis import chapter4 as ch4
-
     r = ch4.chain_from_offline(run, "run", plant)
     out = {k: float(v) for k, v in ch4.chain_metrics(r).items()}
     out["q1_initial_m"] = float(r.q[0, 0])
@@ -121,9 +120,6 @@ def appendix_c(run: Any, plant: dict[str, Any]) -> dict[str, float]:
 def chapter6(run: Any, scheme: str, plant: dict[str, Any], controller: dict[str, Any]
              ) -> dict[str, float]:
     """The chapter 6 figures of an offline run (module docstring)."""
-    from cr_control.analysis import chapter6_metrics as m6
-    from cr_control.analysis import chapter6_runs as r6
-
     r = r6.from_offline(run, scheme, plant, controller)
     t = r.time
     first, late, after = t < STARTUP_S, _late(t), t >= STARTUP_S

@@ -34,7 +34,10 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from cr_control.experiments.study import Study, row
 from cr_control.experiments.sweep import SweepResult
+from cr_control.schemes.force.backstepping_force import PARAMETERS as BS
+from cr_control.schemes.force.mrac_force import TRUE_THETA_F_CASE1
 
 #: Studies by mode: chapter 4 durations (s) and grids.
 CH4_SECONDS = {"quick": 40.0, "full": 100.0}
@@ -91,17 +94,8 @@ CORRECTION = {
 Claim = Callable[..., None]
 
 
-def _study(name: str, chapter: str, title: str, spec: dict[str, Any]) -> Any:
-    from cr_control.experiments.reproduce import Study  # reproduce imports this module
-
-    return Study(name, chapter, title, spec)
-
-
-def studies(mode: str) -> list[Any]:
+def studies(mode: str) -> list[Study]:
     """The chapter 2, 4, 6 and appendix C sweeps of ``mode`` (quick / full)."""
-    from cr_control.schemes.force.backstepping_force import PARAMETERS as BS
-    from cr_control.schemes.force.mrac_force import TRUE_THETA_F_CASE1
-
     gamma_thesis = next(p.default for p in BS if p.name == "Gamma")
     theta_f = [float(x) for x in TRUE_THETA_F_CASE1]
     out = []
@@ -112,14 +106,14 @@ def studies(mode: str) -> list[Any]:
             ("moving_object_nn", "2.74, 2.79-2.81",
              ["M1_norm_rel_err_late", "C1_norm_rel_err_late", "G1_norm_rel_err_early",
               "G1_norm_rel_err_late"])):
-        out.append(_study(f"ch2_{scheme}", "2", f"{scheme} ({eqs}): joint error e^1, force "
+        out.append(Study(f"ch2_{scheme}", "2", f"{scheme} ({eqs}): joint error e^1, force "
                           "error and (network) the norms' approximation against lambda_d "
                           "(thesis 2 N), 20 s",
                           {"scheme": scheme, "duration": CH2_SECONDS,
                            "vary": {f"{scheme}.lambda_d": CH2_LAMBDA[mode]},
                            "metrics": ch2_metrics + extra}))
     seconds = CH4_SECONDS[mode]
-    out.append(_study("ch4_backstepping_map", "4", "backstepping_force (4.56): settling time, "
+    out.append(Study("ch4_backstepping_map", "4", "backstepping_force (4.56): settling time, "
                       "steady-state error, overshoot and chattering of delta_c against the "
                       f"outer-layer stiffnesses k_o, k_s (N/m; cases 1-3: 20/50/80), {seconds:g} s",
                       {"scheme": "backstepping_force", "duration": seconds,
@@ -127,14 +121,14 @@ def studies(mode: str) -> list[Any]:
                                 "plant.k_s": CH4_STIFFNESS[mode]},
                        "metrics": ["settling_s", "ss_error_N", "overshoot_N", "chatter_m",
                                    "estimates_drift_tail_rel", "estimates_err_end_rel"]}))
-    out.append(_study("ch4_adaptation", "4", "backstepping_force with and without adaptation "
+    out.append(Study("ch4_adaptation", "4", "backstepping_force with and without adaptation "
                       "(gamma of d_hat x Gamma of theta_hat; case 4: both 0), case 1 plant, "
                       f"{seconds:g} s",
                       {"scheme": "backstepping_force", "duration": seconds,
                        "vary": {"backstepping_force.gamma": [0.0, 0.01],
                                 "backstepping_force.Gamma": [0.0, list(gamma_thesis)]},
                        "metrics": ["settling_s", "ss_error_N", "f_max_N", "held_from_s"]}))
-    out.append(_study("ch4_mrac", "4", "mrac_force (4.72, 4.76-4.77), case 5: from 0.65 x "
+    out.append(Study("ch4_mrac", "4", "mrac_force (4.72, 4.76-4.77), case 5: from 0.65 x "
                       f"theta_f (thesis) and from the true theta_f, {MRAC_SECONDS[mode]:g} s",
                       {"scheme": "mrac_force", "duration": MRAC_SECONDS[mode],
                        "vary": {"mrac_force.theta_f_hat_0": [[0.65 * x for x in theta_f],
@@ -142,7 +136,7 @@ def studies(mode: str) -> list[Any]:
                        "metrics": ["settling_s", "ss_error_N", "model_err_max_tail_N",
                                    "held_from_s"]}))
     for n in (1, 2, 3):
-        out.append(_study(f"appC_n{n}", "C", f"cmmsd_backstepping (C.50), n = {n} masses: "
+        out.append(Study(f"appC_n{n}", "C", f"cmmsd_backstepping (C.50), n = {n} masses: "
                           "q_1 regulation against the initial displacement (every mass), "
                           f"{CHAIN_SECONDS[mode]:g} s",
                           {"scheme": "cmmsd_backstepping", "duration": CHAIN_SECONDS[mode],
@@ -153,13 +147,13 @@ def studies(mode: str) -> list[Any]:
                            "metrics": ["q1_max_tail_m", "u_peak_N", "q_max_m"]}))
     ch6 = ["e_q_rms_first_s_rad", "e_q_rms_late_rad", "e_q_max_late_rad",
            "lambda_err_rms_late_N", "lambda_err_max_late_N"]
-    out.append(_study("ch6_fjr_robust_adaptive", "6", "fjr_robust_adaptive (6.58): link and "
+    out.append(Study("ch6_fjr_robust_adaptive", "6", "fjr_robust_adaptive (6.58): link and "
                       "force errors against the joint stiffness K_s (N m/rad; cases 1, 2: "
                       f"10, 50), {CH6_SECONDS:g} s",
                       {"scheme": "fjr_robust_adaptive", "duration": CH6_SECONDS,
                        "vary": {"plant.joint_stiffness": CH6_ROBUST_KS[mode]},
                        "metrics": [*ch6, "lambda_std_late_N", "tau_peak_after_1s_Nm"]}))
-    out.append(_study("ch6_fjr_singular_perturbation", "6", "fjr_singular_perturbation (6.78 + "
+    out.append(Study("ch6_fjr_singular_perturbation", "6", "fjr_singular_perturbation (6.78 + "
                       "6.102): link and force errors against the plant's K_s (the scheme "
                       f"assumes 300 N m/rad), with and without tau_s, {CH6_SECONDS:g} s",
                       {"scheme": "fjr_singular_perturbation", "duration": CH6_SECONDS,
@@ -185,8 +179,6 @@ def _ok(r: dict[str, Any]) -> bool:
 
 def claims(results: dict[str, SweepResult], add: Claim) -> None:
     """The claims of chapters 2, 4, 6 and appendix C, through ``add`` (reproduce's claim())."""
-    from cr_control.experiments.reproduce import row
-
     def strict(chapter: str, text: str, measured: dict[str, Any], *rest: Any) -> None:
         # claims.json is strict JSON: a figure that does not exist (NaN: never settled,
         # never held) is written "n/a", an infinite one "inf"

@@ -21,6 +21,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from cr_control.experiments.study import Study
 from cr_control.experiments.sweep import SweepResult
 
 NAME = "ch4_normalised_gradient"
@@ -35,10 +36,8 @@ CONVERGED_RMS_N = 0.5
 _AT = re.compile(r"t = ([0-9.]+) s")
 
 
-def studies(mode: str) -> list[Any]:
+def studies(mode: str) -> list[Study]:
     """The study of ``mode`` (quick / full)."""
-    from cr_control.experiments.reproduce import Study
-
     return [Study(NAME, "4", "case 5 (mrac_force, theta_f_hat(0) = 0.65 theta_f): the thesis's "
                   "plain gradient (4.76)-(4.77) against a normalised one, force error RMS",
                   {"scheme": "mrac_force", "duration": SECONDS[mode],

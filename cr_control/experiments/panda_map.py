@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from cr_control.experiments.study import Study
 from cr_control.experiments.sweep import SweepResult
 
 NAME = "panda_wiping_map"
@@ -28,10 +29,8 @@ METRICS = ["normal_force_err_rms_last_half_N", "path_err_rms_last_half_m", "cont
            "command_at_limit_s"]
 
 
-def studies(mode: str) -> list[Any]:
+def studies(mode: str) -> list[Study]:
     """The map of ``mode`` (quick / full)."""
-    from cr_control.experiments.reproduce import Study
-
     return [Study(NAME, "3", "Panda wiping task (issue 20), adaptive_impedance (3.32): force "
                   "and path error against the table's K_e (5000 N/m) and the tool's mass "
                   "(0.7 kg, which the controller assumes)",

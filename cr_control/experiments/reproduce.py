@@ -20,18 +20,23 @@ from __future__ import annotations
 import argparse
 import base64
 import html
-import importlib
 import json
 import math
 import sys
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cr_control.experiments import chapters_246c, engine
+from cr_control.experiments import (
+    chapters_246c,
+    engine,
+    normalised_gradient,
+    panda_map,
+    results_tables,
+)
 from cr_control.experiments.spec import SpecError, parse_spec
+from cr_control.experiments.study import Study, row
 from cr_control.experiments.sweep import SweepResult, sweep
 
 CH3 = {"adaptive_impedance": "3.5.1", "robust_adaptive_impedance": "3.5.2",
@@ -46,15 +51,7 @@ CH5_SECONDS = {"quick": 4.0, "full": 10.0}
 FORCE_BOUND_N = 10.0
 ROOT = Path(__file__).resolve().parents[2]
 #: Modules adding studies and claims, each with ``studies(mode)`` and ``claims(results)``.
-MODULES = ("cr_control.experiments.normalised_gradient", "cr_control.experiments.panda_map")
-
-
-@dataclass
-class Study:
-    name: str
-    chapter: str
-    title: str
-    spec: dict[str, Any]
+MODULES = (normalised_gradient, panda_map)
 
 
 def studies(mode: str) -> list[Study]:
@@ -79,17 +76,8 @@ def studies(mode: str) -> list[Study]:
                                       "pos_err_rms_after_m"]}))
     out += chapters_246c.studies(mode)
     for module in MODULES:
-        out += importlib.import_module(module).studies(mode)
+        out += module.studies(mode)
     return out
-
-
-def row(result: SweepResult, **inputs: Any) -> dict[str, Any]:
-    """The row of ``result`` whose inputs are ``inputs`` (node.param with '.' as '__')."""
-    wanted = {k.replace("__", "."): v for k, v in inputs.items()}
-    for r in result.rows:
-        if all(r.get(k) == v for k, v in wanted.items()):
-            return r
-    raise KeyError(wanted)
 
 
 def claims(results: dict[str, SweepResult]) -> list[dict[str, Any]]:
@@ -156,7 +144,7 @@ def claims(results: dict[str, SweepResult]) -> list[dict[str, Any]]:
           lambda: b > a)
     chapters_246c.claims(results, claim)
     for module in MODULES:
-        out += importlib.import_module(module).claims(results)
+        out += module.claims(results)
     return out
 
 
@@ -254,8 +242,6 @@ def main(argv: Iterable[str] | None = None) -> int:
         print(f"ch. {c['chapter']}: {c['verdict']:15s} {c['claim'][:80]}")
     print(f"wrote {path} and {args.out / 'claims.json'} in {time.monotonic() - start:.0f} s")
     if args.write_tables:
-        from cr_control.experiments import results_tables
-
         return results_tables.main([str(args.out / "claims.json"), "--write",
                                     str(args.write_tables)])
     return 0

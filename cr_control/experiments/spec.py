@@ -36,10 +36,12 @@ from typing import Any
 
 import yaml
 
+from cr_control import offline, robots
 from cr_control.core import ros_yaml
 from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, Param, ParameterError, resolve
 from cr_control.core.parameters import _shown as shown  # a value in a message, cut to 80 chars
 from cr_control.schemes.registry import SCHEMES, controller_class, default_scenario
+from cr_sim.plants.registry import SCENARIOS
 
 KEYS = ("scheme", "robot", "duration", "vary", "samples", "seed", "metrics", "set")
 #: Longest simulated time of one point (s): an hour of 1 kHz control.
@@ -159,9 +161,6 @@ def spread(param: Param, value: Any, name: str) -> Any:
 
 def targets(scheme: str, robot: str | None) -> Targets:
     """The parameters of ``scheme``'s offline run (on ``robot``'s wiping task if given)."""
-    from cr_control import offline, robots
-    from cr_sim.plants.registry import SCENARIOS
-
     if robot is None:
         scenario = default_scenario(scheme)
         controller_base: dict[str, Any] = {}

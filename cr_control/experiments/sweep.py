@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cr_control.experiments import engine, plots, table
+from cr_control.experiments import engine, evaluate, plots, table
 from cr_control.experiments.points import points
 from cr_control.experiments.progress import Progress
 from cr_control.experiments.spec import SpecError, SweepSpec, Targets, load_spec, shown
@@ -69,8 +69,6 @@ def check_metrics(spec: SweepSpec, targets: Targets, known: Iterable[str] | None
     if spec.metrics is None:
         return
     if known is None:
-        from cr_control.experiments import evaluate
-
         controller, plant = targets.split(spec.fixed)
         result = evaluate.run_point(spec.scheme, spec.robot, min(PROBE_S, spec.duration),
                                      controller, plant)

@@ -38,7 +38,7 @@ from typing import Any
 
 import yaml
 
-from cr_control.experiments import engine
+from cr_control.experiments import engine, evaluate
 from cr_control.experiments.spec import (
     PLANT,
     Range,
@@ -49,6 +49,7 @@ from cr_control.experiments.spec import (
     read_yaml,
     shown,
 )
+from cr_control.experiments.sweep import check_metrics
 
 KEYS = ("scheme", "duration", "metric", "search", "samples", "seed", "set", "scenarios",
         "held_out")
@@ -104,8 +105,6 @@ def load(path: Path) -> tuple[dict[str, Any], Targets]:
     targets.check({**spec.fixed, **held_out})
     if not isinstance(data["metric"], str):
         raise SpecError(f"metric must be a metric name, got {shown(data['metric'])}")
-    from cr_control.experiments.sweep import check_metrics
-
     spec.metrics = [data["metric"]]
     check_metrics(spec, targets, None)          # a short run: is the metric one a run has?
     return {"spec": spec, "metric": data["metric"], "held_out": dict(held_out),
@@ -143,8 +142,6 @@ def search(cfg: dict[str, Any], targets: Targets, out: Path, cpus: int) -> list[
     scenarios = cfg["scenarios"]
 
     def trial(config: dict[str, float]) -> dict[str, Any]:
-        from cr_control.experiments import evaluate
-
         worst, ok, why = -math.inf, True, ""
         for scenario in scenarios:
             controller, plant = targets.split({**fixed, **scenario, **config})
