@@ -36,21 +36,24 @@ demo: $(STAMP) $(if $(ROBOT),$(ROBOTS_STAMP))
 	$(BIN)/python -m cr_control.tools.warm_up $(SCHEME)
 	$(BIN)/cr_session --scheme $(SCHEME) --duration $(DURATION) --mode $(MODE) --out $(OUT) $(if $(ROBOT),--robot $(ROBOT)) $(DEMO_ARGS)
 
-## Lint, compile the kernels once (numba caches them beside the sources), the whole test suite.
+## Lint, the import contracts (.importlinter, docs/architecture.md), compile the kernels once
+## (numba caches them beside the sources), the whole test suite.
 test: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m cr_control.tools.warm_up
 	$(BIN)/python -m pytest -q --durations=30 test
 
 ## The same without the tests that start ROS or Ray (marked `ros`, test/conftest.py): under 2 min.
 test-fast: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m cr_control.tools.warm_up
 	$(BIN)/python -m pytest -q -m "not ros" test
 
-## Real-time figures and issue 6's targets (PASS/FAIL): sessions across processes, composed and
+## Real-time figures and their targets (PASS/FAIL): sessions across processes, composed and
 ## with the recorder vs a bare rclpy echo pair, the recorder's CPU per message, lockstep and
-## offline speed, costs carried to the issue's machine by the issue's own code run beside ours
+## offline speed, costs carried to the "before" table's machine by that code run beside ours
 ## (and by a loop calibration). Three ABBA repeats per pair (disturbed pairs run again),
 ## 6-12 min; BENCH_ARGS e.g. "--repeat 1 --duration 5 --skip-lockstep" for a quick look.
 BENCH_ARGS ?= --repeat 3

@@ -71,6 +71,7 @@ def is_chapter2(status: dict[str, np.ndarray] | Sequence[str]) -> bool:
 
 
 def _true_p() -> np.ndarray:
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.schemes.closed_chain.moving_object_model import TRUE_P  # analysis -> schemes (one way)
 
     return np.asarray(TRUE_P, dtype=float)
@@ -404,6 +405,7 @@ def compare_sessions(sessions: Sequence[Any], labels: Sequence[str],
 def offline_run(scheme: str, duration: float = 20.0, controller: dict[str, Any] | None = None,
                 plant: dict[str, Any] | None = None, label: str | None = None) -> ObjectRun:
     """Run ``scheme`` offline on the moving-object plant and return its ObjectRun."""
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.offline import run_scheme
 
     result = run_scheme(scheme, duration, controller_overrides=controller, plant_overrides=plant)

@@ -33,6 +33,7 @@ import numpy as np
 
 from cr_control.analysis.chapter2 import figure
 from cr_control.analysis.figures import save_figure as save
+from cr_control.core.parameters import resolve
 
 BACKSTEPPING_NAMES = ("b3", "b2", "b1", "b0", "a4", "a3", "a2", "a1", "a0")
 MRAC_NAMES = ("r3p", "r2p", "r1p", "r0p", "s4", "s3", "s2", "s1", "s0",
@@ -97,8 +98,6 @@ def is_chain_run(status: dict[str, np.ndarray] | Sequence[str]) -> bool:
 # -- true values -------------------------------------------------------------------------
 def _values(specs: Sequence[Any], given: dict[str, Any] | None) -> dict[str, Any]:
     """Defaults of ``specs`` with the entries of ``given`` that name one of them."""
-    from cr_control.core.parameters import resolve
-
     names = {p.name for p in specs}
     return resolve(specs, {k: v for k, v in (given or {}).items() if k in names})
 
@@ -107,6 +106,7 @@ def true_estimates(scheme: str, plant: dict[str, Any] | None,
                    controller: dict[str, Any] | None = None) -> dict[str, float]:
     """What the estimates of ``scheme`` would be for the plant: theta and 1/b_3
     (backstepping), or theta_f of (4.69) from the Diophantine solution and b_3 (MRAC)."""
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_sim.plants import dynamic_constraint
 
     theta = dynamic_constraint.true_theta(_values(dynamic_constraint.PARAMETERS, plant))
@@ -114,6 +114,7 @@ def true_estimates(scheme: str, plant: dict[str, Any] | None,
         out = {f"{n}_hat": float(x) for n, x in zip(BACKSTEPPING_NAMES, theta, strict=True)}
         out["d_hat"] = 1.0 / float(theta[0])
         return out
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.schemes.blocks import diophantine
     from cr_control.schemes.force.mrac_force import PARAMETERS
 
@@ -169,6 +170,7 @@ def force_from_session(session: Any) -> ForceRun:
 
 
 def _chain_truth(plant: dict[str, Any] | None, n: int) -> tuple[float | None, float | None]:
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_sim.plants import cmmsd
 
     try:
@@ -590,6 +592,7 @@ CHAIN_SIZES = (1, 2, 3)
 
 def offline_force(scheme: str, duration: float, controller: dict[str, Any] | None = None,
                   plant: dict[str, Any] | None = None, label: str | None = None) -> ForceRun:
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.offline import run_scheme
 
     result = run_scheme(scheme, duration, controller_overrides=controller, plant_overrides=plant)
@@ -597,6 +600,7 @@ def offline_force(scheme: str, duration: float, controller: dict[str, Any] | Non
 
 
 def offline_chain(n: int, duration: float, plant: dict[str, Any] | None = None) -> ChainRun:
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.offline import run_scheme
 
     plant = {**(plant or {}), "masses": n}

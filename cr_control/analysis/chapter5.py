@@ -23,6 +23,7 @@ import numpy as np
 
 from cr_control.analysis.figures import column_figure
 from cr_control.analysis.figures import save_figure as _save
+from cr_control.core.parameters import resolve
 
 #: Status fields that mark a chapter 5 run.
 REQUIRED = ("f_m", "gap", "d_m", "k_m", "e_x", "e_y", "r_x", "r_y")
@@ -307,7 +308,7 @@ SCHEMES = ("impedance", "fuzzy_unidirectional")
 def offline_run(scheme: str, duration: float = 10.0, plant: dict[str, Any] | None = None,
                 controller: dict[str, Any] | None = None, label: str | None = None) -> ContactRun:
     """Run ``scheme`` offline on the circular surface and return its ContactRun."""
-    from cr_control.core.parameters import resolve
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.offline import run_scheme
     from cr_control.schemes.registry import controller_class
     from cr_sim.plants import circular_surface

@@ -54,6 +54,7 @@ from cr_control.analysis.chapter6_runs import (
     scheme_kind,
     thesis_case,
 )
+from cr_control.core.parameters import resolve
 
 #: Names other modules and the tests import from here (their code lives in the modules above).
 __all__ = [
@@ -82,7 +83,7 @@ def offline_run(scheme: str, duration: float = 20.0, controller: dict[str, Any] 
                 plant: dict[str, Any] | None = None, label: str | None = None) -> FlexRun:
     """Run ``scheme`` offline on its thesis plant (with ``plant`` overrides) and return its
     FlexRun, K_s and slow_control taken from the resolved parameters."""
-    from cr_control.core.parameters import resolve
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.offline import run_scheme, scheme_plant_overrides
     from cr_control.schemes.registry import controller_class
     from cr_sim.plants import flexible_joint_surface
@@ -131,6 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             duration = math.nan
         if not (math.isfinite(duration) and duration > 0.0):
             return _error(f"DURATION must be a positive number of seconds, got {args[1]!r}")
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.schemes.registry import controller_class
 
     for scheme in (ROBUST_SCHEME, SP_SCHEME):

@@ -198,6 +198,7 @@ def true_p(run: FlexRun) -> np.ndarray | None:
     """What p_hat estimates for the section 6.3 links (flexible_joint_model.TRUE_P = p):
     p itself (singular perturbation, K_s known), Lambda^-1 p = [p / k_s1; p / k_s2] (robust,
     Property 6.5; only where the plant's K_s is known). None otherwise."""
+    # lazy: a session is read without loading the laws and plants (cr_control.analysis)
     from cr_control.schemes.flexible_joint.flexible_joint_model import TRUE_P  # analysis -> schemes (one way)
 
     p = run.p_hat()

@@ -31,6 +31,8 @@ import numpy as np
 from cr_control import offline
 from cr_control.analysis import analyze, chapter5, robot
 from cr_control.experiments import chapter_metrics
+from cr_control.schemes.registry import default_scenario
+from cr_sim.plants.registry import SCENARIOS
 
 #: Metrics of a recording's bookkeeping or of the wall clock: not figures of a point.
 LEFT_OUT = ("controller", "samples", "duration_s", "data_warnings")
@@ -85,9 +87,6 @@ def chapter5_metrics(run: offline.OfflineRun, scheme: str, controller_values: di
 def plant_values(scheme: str, plant_overrides: dict[str, Any]) -> dict[str, Any]:
     """The thesis plant's parameter values of an offline run of ``scheme``: the scenario's
     defaults, the registry's thesis settings, then ``plant_overrides``."""
-    from cr_control.schemes.registry import default_scenario
-    from cr_sim.plants.registry import SCENARIOS
-
     values = {p.name: p.default for p in SCENARIOS[default_scenario(scheme)][0]}
     values.update(offline.scheme_plant_overrides(scheme, plant_overrides))
     return values

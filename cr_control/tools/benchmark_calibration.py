@@ -34,6 +34,7 @@ def aba_us_per_call(n: int = 2000, repeats: int = 5) -> float | None:
     try:
         import numpy as np
 
+        # lazy: loaded when the command runs (cr_control.tools)
         from cr_control.models.arm_model import TwoLinkArm
     except ImportError:
         return None
@@ -57,6 +58,7 @@ def step_us_hot_and_after_idle(cycles: int = 400, idle_s: float = 0.0009) -> dic
     exceeds the offline one."""
     import numpy as np
 
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.schemes.registry import make_controller
 
     controller = make_controller(SCHEME)
@@ -83,6 +85,7 @@ def warm_up(robots: Sequence[str] = ()) -> None:
     """A few offline cycles of the scheme in this process, on its thesis plant and on each of
     ``robots``: compiled kernels are built and cached (numba ``cache=True``) before the runs,
     so that no run's first cycle compiles."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.offline import run_scheme
 
     run_scheme(SCHEME, 0.01)

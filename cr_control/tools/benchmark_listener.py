@@ -49,6 +49,7 @@ class Listener:
         from rclpy.task import Future
         from std_msgs.msg import Float64MultiArray
 
+        # lazy: loaded when the command runs (cr_control.tools)
         from cr_control.nodes.qos import CONTROL_QOS
 
         self._rclpy = rclpy

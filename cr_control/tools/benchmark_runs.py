@@ -347,6 +347,7 @@ def _recorded_except(path: Path, skip: str) -> int:
 def run_offline(duration: float, progress: Progress) -> dict[str, Any]:
     """Wall time of the offline loop (no ROS) for ``duration`` simulated seconds."""
     progress.begin("offline loop")
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.offline import run_scheme
 
     t0, cpu0 = time.perf_counter(), time.process_time()

@@ -78,6 +78,7 @@ def params_yaml(scheme: str, robot_name: str | None = None) -> str:
 
 def plant_yaml(scenario: str, values: dict[str, Any] | None = None, title: str = "") -> str:
     """The params file of the plant node running ``scenario`` (with ``values``)."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_sim.plant_node import plant_parameters
 
     return node_yaml("plant", plant_parameters(scenario), title or f"plant, scenario {scenario}",
@@ -100,6 +101,7 @@ def robot_files() -> dict[str, str]:
 def write_all(directory: Path) -> list[Path]:
     """(Re)write the params file of every registered scheme and thesis plant scenario, and of
     every robot's wiping task."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.schemes.registry import SCHEMES, default_scenario
 
     files = {f"{scheme}.yaml": params_yaml(scheme) for scheme in SCHEMES}

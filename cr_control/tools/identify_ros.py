@@ -61,6 +61,7 @@ class RobotPoses:
         from rcl_interfaces.srv import GetParameters
         from rclpy.parameter import parameter_value_to_python
 
+        # lazy: loaded when the command runs (cr_control.tools)
         from cr_control.tools.param_tool import call_service
 
         result = call_service(self.node, self.executor, GetParameters,
@@ -81,6 +82,7 @@ class RobotPoses:
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from sensor_msgs.msg import JointState
 
+        # lazy: loaded when the command runs (cr_control.tools)
         from cr_control.nodes.qos import CONTROL_QOS, TARGET_QOS
         from cr_control.schemes.blocks.wrist_sensor import frame_rotation
 

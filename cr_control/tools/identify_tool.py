@@ -127,6 +127,7 @@ def tilted_poses(start: pin.SE3) -> list[tuple[np.ndarray, np.ndarray]]:
 
 def pose_targets(r: robots.Robot) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`tilted_poses` around the robot's home pose."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.models.urdf import load_chain
 
     chain = load_chain("", r.urdf_file, r.base_link, r.tip_link)
@@ -137,6 +138,7 @@ def identify_on_robot(controller: str, settle: float, average: float,
                       timeout_s: float) -> tuple[ToolEstimate, str]:
     """The poses through the ROS topics of a running controller (:mod:`identify_ros`); the
     estimate and the sensor frame."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.models.urdf import load_chain
     from cr_control.tools.identify_ros import RobotPoses
 
@@ -163,6 +165,7 @@ def identify_in_simulator(robot_name: str, settle: float, average: float,
                           plant_overrides: dict | None = None) -> tuple[ToolEstimate, dict]:
     """Run the poses on the robot's simulated wrist sensor (module docstring); the estimate
     and the plant's parameters (the truth)."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.schemes.registry import make_controller
     from cr_sim.plants.registry import make_plant
 
@@ -269,6 +272,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main_on_robot(args: argparse.Namespace) -> int:
     """``--controller``: the poses through the ROS topics; the estimate written and printed."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.core.ros_env import isolate_this_process
 
     try:

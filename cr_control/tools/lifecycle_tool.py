@@ -110,6 +110,7 @@ class Lifecycle:
         stamp's offset (s)."""
         from sensor_msgs.msg import JointState
 
+        # lazy: loaded when the command runs (cr_control.tools)
         from cr_control.nodes.qos import CONTROL_QOS
 
         seen: list[float] = []

@@ -125,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter, parameter_value_to_python
 
+    # lazy: loaded when the command runs (cr_control.tools)
     from cr_control.nodes.ros_parameters import coerce, refuse_unknown
 
     target = args.node
