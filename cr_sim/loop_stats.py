@@ -69,7 +69,7 @@ class LoopStats:
         self.state_publishers = 0
         #: Longest run of consecutive ticks without a new command in the window.
         self.window_max_missed_run = 0
-        #: One commander at a time (issue 25): commands refused because another publisher
+        #: One commander at a time: commands refused because another publisher
         #: commands, commands refused unread for their size, and changes of commander.
         self.commands_foreign = 0
         self.commands_oversized = 0

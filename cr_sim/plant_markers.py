@@ -1,4 +1,4 @@
-"""The plant's scene markers on ``/plant/markers`` (issue 22; :mod:`cr_control.nodes.markers`).
+"""The plant's scene markers on ``/plant/markers`` (:mod:`cr_control.nodes.markers`).
 
 Every ~33 ms of simulated time (real time: wall time; lockstep: the simulation's), from the
 plant's true state (:mod:`cr_sim.scene`): the surface or constraint (``surface``), the

@@ -1,4 +1,4 @@
-"""What a plant looks like, for the scene markers (issue 22): no ROS here.
+"""What a plant looks like, for the scene markers: no ROS here.
 
 :func:`scene_of` gives a :class:`Scene` for a plant: its fixed shapes (the surface or
 constraint the tool presses on: plane, line, circle or sphere), and, read at the plant's
@@ -14,7 +14,7 @@ Kinds of plant and what is drawn:
 - the flexible-joint arm on its rigid line (ch. 6): n.p + c = 0, and the force n lambda;
 - the moving-object closed chain (ch. 2): the object (a box at its frame) and the
   constraint line through it with normal n_c, both moving with the object, and n_c lambda;
-- a URDF robot on a compliant plane or sphere (issue 20; :mod:`cr_sim.models.contact3d`):
+- a URDF robot on a compliant plane or sphere (:mod:`cr_sim.models.contact3d`):
   a square patch of the plane, or the sphere.
 """
 

@@ -1,5 +1,6 @@
-"""The real-time plant's watchdog (issue 7, libfranka's rule that commands keep coming;
-issue 25): ticks without a new command counted, the reaction said once per silence.
+"""The real-time plant's watchdog (libfranka's rule that commands keep coming,
+``communication_constraints_violation``): ticks without a new command counted, the
+reaction said once per silence.
 
 The reaction is due after ``watchdog_missed_cycles`` such ticks in a row, or once no new
 command has come for :data:`WALL_FACTOR` times that many periods of wall time over at

@@ -2,7 +2,7 @@
 impedance scheme, recorded in lockstep over ROS for 1.5 s; its metrics against the same
 quantities computed directly from the offline loop's columns (lockstep reproduces it bit
 for bit), its figures, and cr_analyze on it, alone and beside a thesis session. The robot
-scenario's sensor is a wrist sensor (issue 24): the normal-force metrics judge the plant's
+scenario's sensor is a wrist sensor: the normal-force metrics judge the plant's
 true contact force (/plant/contact_wrench, the offline loop's ``true_force``), the 2-D
 force metrics what the law was given (the compensated force of the status). The sensor runs
 without noise here: with it the laws' torque steps exceed the plant node's torque-rate

@@ -283,7 +283,7 @@ def test_median_of_repeats_keeps_each_repeat_and_errors():
 
 @pytest.mark.ros
 def test_reference_run_measures_the_issues_own_code(tmp_path):
-    """The code issue 6 measured comes out of this repository's history and runs its own
+    """The code the "before" table measured comes out of this repository's history and runs its own
     benchmark (short runs here): the four figures the cost targets are carried by."""
     repo = Path(bm.__file__).resolve().parents[2]
     if subprocess.run(["git", "-C", str(repo), "cat-file", "-e", f"{bm.REFERENCE_REV}^{{commit}}"],
@@ -449,7 +449,7 @@ def test_panda_targets_are_the_recorders_plus_compute_p50():
                                          rate_hz=990.0, p99_ratio=1.6), echo)
     assert [t.verdict for t in slow] == ["FAIL", "FAIL", "FAIL", "FAIL"]
     assert bm.layout_targets(PANDA, dict(session, compute_p50_us=None), echo)[-1].verdict == "n/a"
-    # The other layouts: issue 6's targets of their own name, no compute limit of their own.
+    # The other layouts: the real-time targets of their own name, no compute limit of their own.
     for lay in bm.LAYOUTS[:3]:
         assert bm.layout_targets(lay, session, echo) == bm.realtime_targets(lay.name, session, echo)
     table = bm.format_targets(targets)

@@ -1,4 +1,4 @@
-"""Chapter 4 (issue 9): dynamic-constraint plant, K-filters, Diophantine equation, the generic
+"""Chapter 4: dynamic-constraint plant, K-filters, Diophantine equation, the generic
 backstepping design against the thesis's rho = 2 equations, and the closed loops with numbers.
 
 Run lengths: the plant is lightly damped (poles near -0.02 +- 0.78j) and A0's slowest mode is

@@ -1,4 +1,4 @@
-"""Chapter 4 and appendix C over ROS (issue 9): the command interface a plant advertises
+"""Chapter 4 and appendix C over ROS: the command interface a plant advertises
 and the controller node checks, position commands on the topic contract, and each scheme
 in lockstep against the offline loop.
 

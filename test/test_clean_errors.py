@@ -1,4 +1,4 @@
-"""Bad input gives a one-line error and a non-zero exit code, never a traceback (issue 7.5).
+"""Bad input gives a one-line error and a non-zero exit code, never a traceback.
 
 Command-line cases run as subprocesses; parameter-service semantics run against a node
 in this process that declares the adaptive impedance parameters the way the controller

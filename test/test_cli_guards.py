@@ -1,4 +1,4 @@
-"""Guards of the command-line tools found by a fuzz (issue 25): one line on stderr and a
+"""Guards of the command-line tools found by a fuzz: one line on stderr and a
 non-zero exit, never a traceback, and nothing done outside what was asked.
 
 - ``cr_param`` refuses a node name ROS would not take (InvalidServiceNameException before)

@@ -1,4 +1,4 @@
-"""Appendix C (issue 9): the chain of N mass-spring-dampers and the adaptive output-feedback
+"""Appendix C: the chain of N mass-spring-dampers and the adaptive output-feedback
 backstepping regulation of q_1 (C.50), any N; the scheme reads q_1 only."""
 
 import numpy as np

@@ -34,7 +34,7 @@ PACKAGE_DIRS = ["resource", "config", "cr_control", "cr_sim", "launch"]
 TOOLS = ["plant", "recorder", "cr_session", "cr_analyze", "cr_benchmark", "cr_param"]
 BUILD_TIMEOUT_S = 120
 #: A fresh install compiles each node's numba kernels before it answers (more of them since
-#: issue 24: the wrist sensor, the contact guard; ~1 min on a loaded machine).
+#: the wrist sensor and the contact guard; ~1 min on a loaded machine).
 QUERY_DEADLINE_S = 180
 STOP_TIMEOUT_S = 15
 

@@ -1,4 +1,4 @@
-"""Contact-ready task-space control (issue 24, items 3-5): the guarded approach, the target
+"""Contact-ready task-space control: the guarded approach, the target
 timeouts and the contact-stability monitor (cr_control.schemes.blocks.contact_guard), in the
 offline loop with the plant's TRUE contact force (OfflineRun.true_force), and in lockstep.
 

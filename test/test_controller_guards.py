@@ -1,4 +1,4 @@
-"""Issue 25, the controller's part: no parameter, message or second publisher may run the arm
+"""Hostile input, the controller's part: no parameter, message or second publisher may run the arm
 away or stall the loop.
 
 - A law whose output is non-finite or sits at its limit for more than max_bad_cycles cycles

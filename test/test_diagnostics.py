@@ -1,4 +1,4 @@
-"""/diagnostics (issue 22): the level rules without ROS, and a real-time session's statuses:
+"""/diagnostics: the level rules without ROS, and a real-time session's statuses:
 OK while it runs, the plant at ERROR within 2 s of a killed controller."""
 
 import math
@@ -184,7 +184,7 @@ def test_session_ok_then_the_plant_errors_within_2_s_of_a_killed_controller(ros_
         lambda m: got.extend((m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec, s.name,
                               s.level[0], s.message) for s in m.status),
         DIAGNOSTICS_QOS)
-    # The scene markers in real time too (issue 22): their rate by their stamps, printed.
+    # The scene markers in real time too: their rate by their stamps, printed.
     from visualization_msgs.msg import MarkerArray
 
     from cr_control.nodes.markers import MARKERS_QOS

@@ -1,4 +1,4 @@
-"""Issue 25, item 5: a real-time controller subscribes to /joint_states only once every
+"""A real-time controller subscribes to /joint_states only once every
 participant already on the domain has been discovered (cr_control/nodes/discovery_settle.py),
 and the plant starts its loop only once a commander subscribes to its states."""
 

@@ -1,4 +1,4 @@
-"""No silent cross-talk (issue 7.4): machine-wide domain-id locks, sessions refusing an
+"""No silent cross-talk: machine-wide domain-id locks, sessions refusing an
 occupied domain, and cr_analyze flagging recordings that mixed two runs."""
 
 from __future__ import annotations

@@ -328,7 +328,7 @@ def test_constraint_derivatives_and_corrected_L():
 
 
 def test_initial_state():
-    """DESIGN.md: q_l(0) = [2.85, -2.1202] is on x - y + 0.35 = 0; the printed [2.85, -1.77]
+    """docs/thesis.md: q_l(0) = [2.85, -2.1202] is on x - y + 0.35 = 0; the printed [2.85, -1.77]
     lies on neither line."""
     assert abs(_constraint(fm.Q_L0, np.zeros(2))[fm.PHI]) < 1e-5
     for offset in (fm.SURFACE_OFFSET, fm.PRINTED_SURFACE_OFFSET):
@@ -360,7 +360,7 @@ def test_desired_motion_kinematics():
     assert np.abs(arm.tool_position(qj[0]) - _r_d(0.3)[0]).max() < 1e-12
     # per-axis omega/phase arrays give the same as scalars
     assert np.array_equal(_motion(0.3, omega=np.array([2.0, 2.0]), phase=np.zeros(2)), _motion(0.3))
-    # near the initial state of section 6.3 (DESIGN.md)
+    # near the initial state of section 6.3 (docs/thesis.md)
     t0 = math.acos(0.636) / 2
     assert np.abs(_r_d(t0)[0] - [-0.0636, 0.2864]).max() < 1e-12
     assert np.abs(_motion(t0)[0] - [2.85, -2.12]).max() < 2e-3

@@ -1,4 +1,4 @@
-"""cr_fuzz (issue 25, item 8): its verdicts and its command line. Its real-time runs are
+"""cr_fuzz: its verdicts and its command line. Its real-time runs are
 ``make fuzz`` (docs/safety.md has the table): real-time outcomes are not asserted in tests.
 
 The fuzz table's other rows are tests of their own: parameter bounds

@@ -1,4 +1,4 @@
-"""cr_identify_tool on a robot (issue 24): the poses and the least squares through the topics of a
+"""cr_identify_tool on a robot: the poses and the least squares through the topics of a
 running controller, here a lockstep Panda session (the simulated wrist sensor: 0.7 kg tool,
 COM 6 cm out, a few newtons of bias, 0.2 N of noise) with the table out of reach.
 

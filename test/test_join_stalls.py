@@ -1,4 +1,4 @@
-"""A node joining the domain never stalls the loop (issue 25).
+"""A node joining the domain never stalls the loop.
 
 A fuzz saw the controller of a real-time session stall 0.22-0.35 s in 10 of 72 runs when
 a third process joined the domain 2-3 s after the start (3 of them tripped the

@@ -1,4 +1,4 @@
-"""Managed controllers (issue 22): lifecycle states, autostart, and a live switch of schemes.
+"""Managed controllers: lifecycle states, autostart, and a live switch of schemes.
 
 - :meth:`Controller.reset` (what an activation does) restores the law's initial state and
   restarts its stepping, keeping the time origin for an absolute reference;

@@ -1,4 +1,4 @@
-"""Lockstep recording loses nothing to a slow reader, by construction (issue 6).
+"""Lockstep recording loses nothing to a slow reader, by construction.
 
 A lockstep loop runs several times faster than real time; a recorder that falls behind
 (starved of CPU on a 2-core machine) used to lose messages: the plant's KEEP_LAST writer

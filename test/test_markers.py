@@ -1,4 +1,4 @@
-"""Scene markers (issue 22): the scene of every plant without ROS, and a lockstep session
+"""Scene markers: the scene of every plant without ROS, and a lockstep session
 whose recording holds the plant's and the controller's markers at ~30 Hz of simulated time,
 and /diagnostics from both nodes."""
 

@@ -31,7 +31,7 @@ def test_pinocchio_matches_printed_closed_forms(arm, q, v):
 
 
 def test_base_parameters_are_the_corrected_thesis_values():
-    """DESIGN.md: p = [0.6135, 0.0045, 0.30225, 0.441, 0.147] (ch. 2 prints p2 = 0.04)."""
+    """docs/thesis.md: p = [0.6135, 0.0045, 0.30225, 0.441, 0.147] (ch. 2 prints p2 = 0.04)."""
     p = LinkParameters().base_parameters()
     assert np.allclose(p, [0.6135, 0.0045, 0.30225, 0.441, 0.147], atol=1e-12)
 

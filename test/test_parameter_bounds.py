@@ -1,4 +1,4 @@
-"""Every numeric parameter has a physical bound, and parameter requests are cheap (issue 25).
+"""Every numeric parameter has a physical bound, and parameter requests are cheap.
 
 A fuzz of the running nodes found finite but absurd values accepted (``Q_c = [1e308, 1e308]``
 made the law's output non-finite), a refused 10^6-element request blocking the controller

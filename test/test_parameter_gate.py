@@ -1,4 +1,4 @@
-"""The parameter gate (issue 25): a node's parameter services are taken off its executor's
+"""The parameter gate: a node's parameter services are taken off its executor's
 thread, requests are sized from their C struct and refused unread beyond the bounds, and
 the ones let through are answered by the service's own callback on the executor's thread.
 

@@ -1,4 +1,4 @@
-"""The plant's guards on its command stream (issue 25): one commander at a time, handover
+"""The plant's guards on its command stream: one commander at a time, handover
 after a stated silence, oversized commands refused unread.
 
 The node tests drive the plant node callback by callback (no spinning, no clock waits) as
@@ -263,7 +263,7 @@ def test_sender_aware_subscription_reports_each_publishers_gid(executor):
 
 @pytest.mark.ros
 def test_one_wake_up_takes_what_is_queued():
-    """A flood (issue 25's 50 000 states from a second publisher) costs one take per message,
+    """A flood (50 000 states from a second publisher) costs one take per message,
     not one executor wake-up: take_data() takes every queued message, up to its bound."""
     from rclpy.duration import Duration
 
@@ -334,7 +334,7 @@ def test_the_plant_refuses_a_second_publisher_over_ros(make_node):
 
 @pytest.mark.ros
 def test_a_rogue_beside_a_running_controller_is_refused(ros_env):
-    """The fuzz of issue 25, real time: beside plant and adaptive_impedance, a second
+    """The fuzz, real time: beside plant and adaptive_impedance, a second
     publisher sends a +-20 N m bang-bang for 1 s, then 1e308. Before: obeyed, 5 rad/s and
     18-32 rad/s. Now every rogue command is refused (counted), the arm moves as under
     control alone (< 2 rad/s; ~0.9 rad/s is the task's) and nothing stops."""

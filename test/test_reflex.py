@@ -1,4 +1,4 @@
-"""The plant's reflexes (issue 20, libfranka's Cartesian and joint reflexes): a contact force
+"""The plant's reflexes (libfranka's Cartesian and joint reflexes): a contact force
 above the scenario's ``max_contact_force`` or a joint velocity above its URDF limit safe-
 stops the plant, in realtime and in lockstep, logged once, shown in /plant/timing
 (``safe_stop_reason``) and ended by ``resume``.

@@ -193,7 +193,7 @@ def test_chapters_246c_verdicts_of_the_measured_numbers():
         assert c["rule"] and c["claim"][0].isdigit() or c["claim"].startswith("C.")
         assert any(isinstance(v, float) for v in c["measured"].values()), c["claim"]
         if c["verdict"] == WITH:                      # a correction names its equations
-            assert c["correction"].startswith("DESIGN.md ch. ") and "(" in c["correction"]
+            assert c["correction"].startswith("docs/thesis.md ch. ") and "(" in c["correction"]
         else:
             assert "correction" not in c
 

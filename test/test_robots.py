@@ -141,7 +141,7 @@ def test_the_ur5_runs_at_its_drivers_rate():
 
 # -- lockstep over ROS -----------------------------------------------------------------------------
 LOCKSTEP_S = 2.0
-#: Lockstep against offline. 1e-6 before issue 24; the guarded approach's contact (the
+#: Lockstep against offline. 1e-6 before the guarded approach; the guarded approach's contact (the
 #: reference stops at once) asks a torque step at the plant node's rate limit (1 N m per
 #: cycle: r_d' goes from the approach speed to the path's at once), so from then the runs
 #: differ slightly (measured: 1.1e-5 m in e_x and 0.018 N in f_z on the Panda; torques up to

@@ -1,4 +1,4 @@
-"""Controller robustness (issue 7): absurd inputs held and recovered from, clamped
+"""Controller robustness: absurd inputs held and recovered from, clamped
 integration steps, restored internal state, status reporting the command sent.
 
 Unit tests on the Controller base through a real scheme (no ROS).
@@ -78,7 +78,7 @@ def test_absurd_velocity_is_held(running):
 
 
 def test_a_one_second_gap_is_not_integrated_as_one_step(running):
-    """Issue 7: A_hat_11 jumped 45 -> 120 over a 1 s gap. Now the gap cycle is held and the
+    """Found once: A_hat_11 jumped 45 -> 120 over a 1 s gap. Now the gap cycle is held and the
     stepping restarts after it: the integrals advance by one period; only the
     proportional adaptation terms react to the error against a reference that moved on
     by 1 s (measured: 1.1), so no estimate moves by more than 2."""

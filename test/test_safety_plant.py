@@ -1,4 +1,4 @@
-"""Plant-side safety (issue 7): command limits, refused commands, the watchdog's safe
+"""Plant-side safety: command limits, refused commands, the watchdog's safe
 stop, other publishers on the loop, clean start-up errors and a quiet Ctrl-C.
 
 The first tests are offline (no ROS); the rest start real plant and controller
@@ -309,7 +309,7 @@ def test_bad_params_file_for_a_controller(tmp_path, ros_env):
 
 @pytest.mark.ros
 def test_ctrl_c_of_a_running_plant_is_quiet(ros_env):
-    """Issue 7: 4 of 8 SIGINTs printed [FATAL] Exception in 'timers' callback."""
+    """Found once: 4 of 8 SIGINTs printed [FATAL] Exception in 'timers' callback."""
     controller = start_node(CONTROLLER, ros_env)
     try:
         for _ in range(4):

@@ -1,5 +1,5 @@
 """cr_sweep on a Ray cluster as a cluster runs: a head and a second node started as separate
-``ray start`` processes (on 127.0.0.2 and 127.0.0.3: DESIGN.md's loopback settings, token
+``ray start`` processes (on 127.0.0.2 and 127.0.0.3: the loopback settings of docs/experiments.md, token
 auth off for this local test cluster), the sweep joining through ``--address``. Checked: the
 table equals the local run's bit for bit, the second node killed mid-sweep loses no point
 (tasks are retried on the head), and ``ss`` sees no connection of any Ray process of the

@@ -1,4 +1,4 @@
-"""Target timeouts over ROS (issue 24, item 4): a real publisher streams ``~/target_pose`` at
+"""Target timeouts over ROS: a real publisher streams ``~/target_pose`` at
 100 Hz into a running real-time session and then stops. While it streams the target is never
 stale; 0.5 s (``target_timeout``) after it stops the controller holds its pose and says so in
 its status (``target_stale`` = 1) and its log, once.

@@ -1,4 +1,4 @@
-"""The thesis's arm plants take their arm from a URDF (issue 20): robot_description or
+"""The thesis's arm plants take their arm from a URDF: robot_description or
 urdf_file, base_link, tip_link, as the controllers do.
 
 compliant_plane (ch. 3), circular_surface (ch. 5), moving_object (ch. 2) and

@@ -62,7 +62,7 @@ TUNED = Path(__file__).resolve().parents[1] / "docs" / "examples" / "tuned_adapt
 
 @pytest.mark.parametrize("held_out", [{"stiffness": 300.0}, {"link_mass": [0.15, 0.15]}])
 def test_shipped_tuned_gains_beat_the_thesis_5x_on_held_out_scenarios(held_out):
-    """Issue 21 item 3 on the chapter 3 plane: the gains cr_tune found at K_e = 150 N/m
+    """cr_tune on the chapter 3 plane: the gains cr_tune found at K_e = 150 N/m
     (docs/examples/tuned_adaptive_impedance.yaml, from tune_adaptive_impedance.yaml) against
     the thesis gains, on scenarios they were not tuned on; feasible by cr_tune's rule.
     Measured: 86x at K_e = 300 N/m, 86x with link masses +50 %."""

@@ -1,4 +1,4 @@
-"""The controller side of the wrist force/torque sensor (issue 24, items 1-2, 4, 6):
+"""The controller side of the wrist force/torque sensor:
 compensation f = R_S (F_S - b_F) - m g, the start-up zeroing, ~/zero_ft's offline
 equivalent (:meth:`TaskSpaceController.zero_ft`), cr_identify_tool, and the Panda's wiping
 task judged by the plant's TRUE contact force (never by the sensor).

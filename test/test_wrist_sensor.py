@@ -1,4 +1,4 @@
-"""A wrist force/torque sensor in the URDF plant (issue 24, item 1).
+"""A wrist force/torque sensor in the URDF plant.
 
 Checked: a :class:`Tool` replaces what the URDF mounts beyond the sensor link (the Panda's
 hand and fingers) with its own mass, centre of mass and inertia, every frame of the URDF

@@ -5,7 +5,7 @@ The stand-in (a node in this process) owns the simulated Panda of the wiping tas
 behaves like joint_state_broadcaster (/joint_states: all 9 joints, fingers first, arm
 joints shuffled, positions, velocities, efforts, stamped), force_torque_sensor_broadcaster
 (/force_torque_sensor_broadcaster/wrench: the wrist sensor's force and torque, frame_id
-panda_link8, issue 24) and an effort
+panda_link8) and an effort
 forward_command_controller (/effort_controller/commands: a Float64MultiArray mapped onto
 its own ``joints`` list, an order unlike the URDF's and the states'). It steps the plant
 1 ms per command and then publishes the next state (lockstep: each command answers the

@@ -1,4 +1,4 @@
-"""~/zero_ft over ROS (issue 24): the adaptive_impedance executable on the Panda's profile
+"""~/zero_ft over ROS: the adaptive_impedance executable on the Panda's profile
 (its wrist sensor at panda_link8, zeroing at start off) answers std_srvs/Trigger:
 
 - refused before any wrench ("no wrench ... yet");

@@ -7,7 +7,7 @@ lambda and its error, and tau_1..tau_3 (tau^1 of the arm, tau^2 = the prismatic 
 force) in their status (:mod:`cr_control.schemes.closed_chain.moving_object_model`); the adaptive scheme
 adds P_hat_1..7, the network scheme |M^1|, |M^_nn|, |C^1|, |C^_nn|, |G^1|, |G^_nn|.
 
-:func:`object_metrics` gives what issue 10 asks for side by side, per time window: RMS/max
+:func:`object_metrics` gives the chapter 2 schemes' figures side by side, per time window: RMS/max
 of |e^1|, x_o and x_co errors, lambda range and error, peak torques; :func:`run_summary`
 the whole-run numbers (lambda < 0 intervals, final estimates and norm errors).
 :func:`plot_chapter2` draws per scheme: object and contact-point tracking (figs. 2.4, 2.7),

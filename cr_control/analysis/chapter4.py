@@ -8,7 +8,7 @@ plus the estimates (b3_hat..a0_hat, d_hat; or theta_f hats r3p_hat..t0_hat, b3_h
 reference-model output f_m). Chain runs (:class:`ChainRun`) come from
 ``cmmsd_backstepping`` (q_1 in r_x, u, d_hat, theta_hat_norm, z_1).
 
-:func:`force_metrics` gives what issue 9 asks for: settling time (2 % band), undershoot
+:func:`force_metrics` gives the figures of a force step response: settling time (2 % band), undershoot
 and overshoot, steady-state error and peak-to-peak over the last 10 s, chattering (RMS of
 delta_c about its 1 s moving average), delta_c range, time without contact, and when the
 controller started holding its command (a diverged loop). :func:`plot_force_run` draws one
@@ -219,7 +219,7 @@ def _first_held(t: np.ndarray, held: np.ndarray) -> float:
 
 
 def force_metrics(run: ForceRun, tail: float = TAIL_S) -> dict[str, float]:
-    """The numbers of issue 9 for one run (SI units; keys end with the unit).
+    """The step-response figures of one run (SI units; keys end with the unit).
 
     ``settling_s``: last time |f - f_d| left the 2 % band (NaN if outside at the end);
     ``undershoot_N``: f_d - min f (t > 0.1 s); ``overshoot_N``: max f - f_d after that

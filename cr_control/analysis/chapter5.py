@@ -5,7 +5,7 @@ of the ``impedance`` or ``fuzzy_unidirectional`` scheme: both publish the normal
 f_m = n^T f, the gap to the surface |r - c| - R (negative = penetration) and d_m, k_m in
 their status (:mod:`cr_control.schemes.blocks.unidirectional_impedance`).
 
-:func:`contact_metrics` gives what issue 8 asks for side by side: time separated, minimum
+:func:`contact_metrics` gives the two chapter 5 schemes' figures side by side: time separated, minimum
 normal force, force RMS error after the disturbance, position RMS error, peak torque,
 d_m range. :func:`plot_chapter5` draws per scheme: position (figs. 5.3, 5.6), normal force
 with the f_min/f_max band and the disturbance window (5.4, 5.7), torques (5.5, 5.8), d_m
@@ -116,7 +116,7 @@ def _rms(x: np.ndarray) -> float:
 
 
 def contact_metrics(run: ContactRun) -> dict[str, float]:
-    """The side-by-side figures of issue 8 (SI units, keys end with the unit).
+    """The side-by-side figures of the chapter 5 schemes (SI units, keys end with the unit).
 
     ``separated_s``: time the tool spent outside the surface (gap > GAP_TOL = 1 um);
     ``no_force_s``: time with no pushing force (f_m <= 0) after t = 0;

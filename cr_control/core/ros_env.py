@@ -1,4 +1,4 @@
-"""Environment for processes that start ROS on these machines (DESIGN.md, "Network rule").
+"""Environment for processes that start ROS: discovery on localhost only, a domain each.
 
 Fast DDS multicasts discovery off the machine by default; every process we start runs
 with localhost-only discovery and a domain id of its own so parallel runs never meet.

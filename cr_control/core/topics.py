@@ -1,4 +1,4 @@
-"""The topic contract of cr_control (DESIGN.md, "Topic contract") in one place.
+"""The topic contract of cr_control in one place (docs/usage.md lists it for users).
 
 Labelled arrays: controller reference/status and plant timing are published as
 ``std_msgs/Float64MultiArray`` with a single layout dimension whose ``label`` is the
@@ -20,10 +20,10 @@ CLOCK = "/clock"
 PLANT_TIMING = "/plant/timing"
 PARAMETER_EVENTS = "/parameter_events"
 RECORDER_READY = "/recorder/ready"
-#: diagnostic_msgs/DiagnosticArray, 1 Hz, from the plant and every controller (issue 22;
-#: the levels' rules: cr_control.core.diagnostics).
+#: diagnostic_msgs/DiagnosticArray, 1 Hz, from the plant and every controller (as
+#: ros2_control's diagnostic updaters; the levels' rules: cr_control.core.diagnostics).
 DIAGNOSTICS = "/diagnostics"
-#: visualization_msgs/MarkerArray, ~30 Hz (issue 22): the plant's scene (surface or
+#: visualization_msgs/MarkerArray, ~30 Hz: the plant's scene (surface or
 #: constraint, links, tip trail, contact force) and each controller's desired path
 #: (``/<controller>/markers``, :func:`markers_topic`).
 PLANT_MARKERS = "/plant/markers"
@@ -104,9 +104,9 @@ def labelled_writer(fields: Sequence[str]) -> cdr.Writer:
 #: ``commands_refused`` (run totals), ``command_publishers`` / ``state_publishers``
 #: (publishers seen on /joint_commands and /joint_states, the plant included; more than
 #: one each means another participant is on the loop), ``window_max_missed_run`` (longest
-#: run of consecutive ticks without a new command in the window); issue 20:
+#: run of consecutive ticks without a new command in the window); the reflexes:
 #: ``safe_stop_reason`` (why the safe stop is engaged: 0 none, 1 watchdog, 2 contact force
-#: reflex, 3 joint velocity reflex; ``safe_stop`` is 1 for each of them); issue 25 (one
+#: reflex, 3 joint velocity reflex; ``safe_stop`` is 1 for each of them); hostile input (one
 #: commander at a time, run totals): ``commands_foreign`` (commands refused unread because
 #: another publisher is the commander), ``commands_oversized`` (commands refused unread for
 #: their size) and ``commander_handovers`` (times another publisher took over after the
@@ -159,7 +159,7 @@ STATUS_FIELDS = [
 #: Fields the controller node appends after every controller's status fields (its own
 #: timing, not the control law's): ``in_time_us`` from callback entry to the start of
 #: the control computation, ``out_time_us`` building and publishing the previous
-#: cycle's command, reference and status. Issue 25: ``commands_stopped`` (1 while the
+#: cycle's command, reference and status. Failure handling: ``commands_stopped`` (1 while the
 #: law's output has failed too long and no command is published), and run totals:
 #: ``states_foreign`` (states from another /joint_states publisher than the one followed,
 #: ignored), ``source_handovers`` (times another publisher was followed after the
@@ -172,7 +172,7 @@ NODE_STATUS_FIELDS = ["in_time_us", "out_time_us", "commands_stopped", "states_f
 
 #: The plant's command interface, ``std_msgs/String`` "effort" or "position", latched
 #: (RELIABLE, TRANSIENT_LOCAL, depth 1; published once at start): a controller node whose
-#: scheme commands the other kind refuses to drive the plant and exits (issue 9).
+#: scheme commands the other kind refuses to drive the plant and exits.
 PLANT_COMMAND_INTERFACE = "/plant/command_interface"
 
 #: A plant's extra measurements (``Plant.sensor_fields``, e.g. the closed chain's lambda):
@@ -181,7 +181,7 @@ PLANT_COMMAND_INTERFACE = "/plant/command_interface"
 PLANT_SENSORS = "/plant/sensors"
 
 #: The plant's true contact wrench (geometry_msgs/WrenchStamped, base frame, the joint state's
-#: stamp; issue 24), published by plants that have one (``urdf_surface``): for analysis and
+#: stamp), published by plants that have one (``urdf_surface``): for analysis and
 #: tests only, no controller reads it (a real robot has no such topic). Judge force control
 #: by it, never by the sensor's wrench alone.
 CONTACT_WRENCH = "/plant/contact_wrench"

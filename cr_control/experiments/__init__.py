@@ -1,5 +1,5 @@
 """Experiments on many offline runs: sweeps (``cr_sweep``), gain tuning (``cr_tune``) and the
-thesis reproduction (``cr_reproduce``), run on Ray (issue 21).
+thesis reproduction (``cr_reproduce``), run on Ray (Ray Tune for the tuning).
 
 Modules by responsibility: :mod:`.spec` (the SPEC file, checked against the schemes' and
 plants' own :class:`~cr_control.core.parameters.Param` declarations), :mod:`.points` (grid

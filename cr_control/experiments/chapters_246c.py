@@ -24,7 +24,7 @@ instead of 6.
 
 Claims (:func:`claims`): each with the numbers measured, a stated rule, and the verdict
 computed by the rule (the claim() helper of :mod:`.reproduce`). Where the run needs one of
-DESIGN.md's corrections of the thesis to hold, the claim names it (equation numbers) and the
+the corrections of the thesis (docs/thesis.md) to hold, the claim names it (equation numbers) and the
 verdict is "reproduced with correction".
 """
 
@@ -75,19 +75,19 @@ DIVERGED_RAD = 1.0
 #: The singular-perturbation force "at lambda_d": |mean lambda - lambda_d| late below (N).
 FORCE_AT_DESIRED_N = 0.1
 
-#: DESIGN.md's corrections the runs need, with the thesis's equation numbers.
+#: The corrections of the thesis (docs/thesis.md) the runs need, with its equation numbers.
 CORRECTION = {
-    "moving_object_adaptive": "DESIGN.md ch. 2: L^-T in (2.27) is a right inverse of L^T; "
+    "moving_object_adaptive": "docs/thesis.md ch. 2: L^-T in (2.27) is a right inverse of L^T; "
     "psi_11 of the regressor of (2.35) is qddot_r1 (printed thetaddot_1); x and y swapped "
     "back in (2.100); p2 = 0.0045 (printed 0.04)",
-    "moving_object_nn": "DESIGN.md ch. 2: L^-T in (2.74) is a right inverse of L^T; x and y "
+    "moving_object_nn": "docs/thesis.md ch. 2: L^-T in (2.74) is a right inverse of L^T; x and y "
     "swapped back in (2.100)",
-    "backstepping_force": "DESIGN.md ch. 4: the coefficients d_0..d_3, l_0..l_2 of (4.4) "
+    "backstepping_force": "docs/thesis.md ch. 4: the coefficients d_0..d_3, l_0..l_2 of (4.4) "
     "corrected (b_c b_c, missing 1/b_s); plant (4.2)-(4.3) with (4.5)",
-    "mrac_force": "DESIGN.md ch. 4: r_2, r_1, r_0 of the MRAC (4.72) corrected "
+    "mrac_force": "docs/thesis.md ch. 4: r_2, r_1, r_0 of the MRAC (4.72) corrected "
     "(r_3 = r + b_2/b_3, r_2 = (r b_2 + b_1)/b_3, r_1 = (r b_1 + b_0)/b_3, r_0 = r b_0/b_3); "
     "(4.4) coefficients corrected",
-    "fjr": "DESIGN.md ch. 6: the surface x - y + 0.35 = 0 (printed x - y + 0.25 = 0), "
+    "fjr": "docs/thesis.md ch. 6: the surface x - y + 0.35 = 0 (printed x - y + 0.25 = 0), "
     "q_l(0) = [2.85, -2.1202], L of (6.118) = [1; -1 - d1(s1+c1)/(d2(s12+c12))]",
 }
 

@@ -1,6 +1,6 @@
 """The engine that runs points: Ray, local by default, or an existing cluster (``--address``).
 
-Network rule (DESIGN.md, "Ray ... on these machines"): out of the box Ray on Linux takes the
+Network rule (everything on loopback, docs/experiments.md): out of the box Ray on Linux takes the
 machine's interface address as node IP and connects through it. Kept on loopback here:
 - local (default): ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` -> node IP 127.0.0.1, every
   listener on 127.0.0.1 (a single-node instance; multi-node is then refused); no dashboard;
@@ -114,7 +114,7 @@ def start(address: str | None = None, workers: int | None = None) -> int:
             if not node_ip.startswith("127."):
                 ray.shutdown()
                 raise EngineError(f"Ray took {node_ip} as this node's address, not loopback: "
-                                  "refused (the network rule of DESIGN.md)")
+                                  "refused (everything stays on loopback)")
         else:
             host, _ = check_reachable(address)
             if _is_loopback(host):

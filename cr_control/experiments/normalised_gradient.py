@@ -1,4 +1,4 @@
-"""The normalised-gradient conjecture of chapter 4's case 5, tested by a run (issue 21 item 4).
+"""The normalised-gradient conjecture of chapter 4's case 5, tested by a run.
 
 Case 5 of section 4.3 (``mrac_force``: MRAC (4.72) with the laws (4.75)-(4.77), theta_f_hat(0)
 = 0.65 x theta_f, gamma_f = 0.8) diverges in the offline loop near 50 s, while with the true

@@ -1,4 +1,4 @@
-"""The Panda wiping task's robustness map (issue 21 item 5, with issue 20): force and path
+"""The Panda wiping task's robustness map: force and path
 error against the table's stiffness K_e and the tool's mass.
 
 ``adaptive_impedance`` (3.32) on the Panda's wiping task (:mod:`cr_control.robots`: a
@@ -31,7 +31,7 @@ METRICS = ["normal_force_err_rms_last_half_N", "path_err_rms_last_half_m", "cont
 
 def studies(mode: str) -> list[Study]:
     """The map of ``mode`` (quick / full)."""
-    return [Study(NAME, "3", "Panda wiping task (issue 20), adaptive_impedance (3.32): force "
+    return [Study(NAME, "3", "Panda wiping task, adaptive_impedance (3.32): force "
                   "and path error against the table's K_e (5000 N/m) and the tool's mass "
                   "(0.7 kg, which the controller assumes)",
                   {"scheme": "adaptive_impedance", "robot": "panda", "duration": SECONDS[mode],

@@ -12,7 +12,8 @@ Every study is a :func:`cr_control.experiments.sweep.sweep` (so resumable: DIR/r
 every figure is the sweep's own, inlined as base64 PNG. ``claims.json``: one entry per claim,
 ``{"chapter", "claim", "measured", "rule", "verdict"}``; the verdict is computed from the
 measured numbers by the rule written next to it (reproduced / not reproduced; "reproduced
-with correction" where the claim names the DESIGN.md correction its run needs), never typed.
+with correction" where the claim names the thesis correction its run needs: docs/thesis.md),
+never typed.
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def claims(results: dict[str, SweepResult]) -> list[dict[str, Any]]:
 
     def claim(chapter: str, text: str, measured: dict[str, Any], rule: str,
               holds: Callable[[], bool], correction: str = "") -> None:
-        """One claim; ``correction``: the DESIGN.md defect (equation numbers) the run
+        """One claim; ``correction``: the thesis defect (docs/thesis.md, equation numbers) the run
         corrects, if any: the verdict is then "reproduced with correction" when it holds."""
         verdict = ("reproduced with correction" if correction else "reproduced") if holds() \
             else "not reproduced"

@@ -1,4 +1,4 @@
-"""docs/results.md's claims tables, generated from ``claims.json`` (issue 21 item 4).
+"""docs/results.md's claims tables, generated from ``claims.json`` (``cr_reproduce --write-tables``).
 
 Each chapter with claims gets one block in docs/results.md between two marker comments::
 

@@ -3,7 +3,7 @@
 A SPEC is a YAML mapping with these keys::
 
     scheme: adaptive_impedance        # an executable name (cr_control.schemes.registry)
-    robot: panda                      # optional: the robot's wiping task (issue 20)
+    robot: panda                      # optional: the robot's wiping task (cr_control.robots)
     duration: 4.0                     # simulated seconds per point
     vary:                             # node.param -> values, as ``cr_session -p node.param=v``
       adaptive_impedance.Q_c: [[5, 5], [50, 50]]   # a list of values: a grid axis

@@ -1,7 +1,7 @@
 """Planar 2-link arm of the thesis (ch. 2, 3, 5, 6) built from URDF through Pinocchio.
 
 The arm moves in the vertical x-y plane with gravity along -y. Notation of eq. (2.103)
-with DESIGN.md's resolution of the d/l swap: link length ``length`` (0.3 m), centre of
+with the d/l swap of chapter 6 resolved (docs/thesis.md): link length ``length`` (0.3 m), centre of
 mass ``com`` from the joint (0.15 m), mass ``mass`` (0.1 kg) and inertia ``inertia``
 (0.3 kg m^2) about the centre of mass. The closed forms printed in the thesis are in
 :func:`closed_form_dynamics` so tests can compare them with Pinocchio.
@@ -225,7 +225,7 @@ class TwoLinkArm:
 def two_link_inverse_kinematics(length, base, point, elbow_sign: float) -> np.ndarray:
     """[theta1, theta2] putting the tool of a 2-link arm based at ``base`` at ``point`` with
     sign(sin theta2) = elbow_sign: c1 = ((d1 + d2 c2) x + d2 s2 y)/r^2 with x, y relative to
-    the base and atan2 (2.95-2.100 as corrected in DESIGN.md; ch. 6.3). ValueError if out
+    the base and atan2 (2.95-2.100 as corrected in docs/thesis.md; ch. 6.3). ValueError if out
     of reach."""
     d1, d2 = length
     x, y = float(point[0]) - base[0], float(point[1]) - base[1]

@@ -1,5 +1,5 @@
 """How long a real-time controller waits, once its DDS participant exists, before it joins
-the loop (issue 25: no process on the domain may stall the loop).
+the loop (no process on the domain may stall the loop).
 
 Why (Fast DDS 2.14, the middleware of rmw_fastrtps in Jazzy; measured on this project's
 2-core VM, 2026-11-26): the first message a participant sends to another participant's

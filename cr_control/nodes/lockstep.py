@@ -1,4 +1,4 @@
-"""Lockstep pacing: a loop that may wait loses nothing to a slow reader (issue 6).
+"""Lockstep pacing: a loop that may wait loses nothing to a slow reader.
 
 In lockstep the loop runs as fast as plant and controller allow, several times real
 time. A reliable KEEP_LAST writer keeps only its last ``topics.PUBLISH_DEPTH`` samples:

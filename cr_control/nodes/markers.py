@@ -1,4 +1,4 @@
-"""Scene markers for RViz and Foxglove (visualization_msgs/MarkerArray, issue 22).
+"""Scene markers for RViz and Foxglove (visualization_msgs/MarkerArray).
 
 Who publishes what: the plant knows the surface, the links and the contact
 (``/plant/markers``: :mod:`cr_sim.plant_markers`); a controller knows its desired path

@@ -1,4 +1,4 @@
-"""A pre-faulted heap for the processes of the real-time loop (issue 25), as real-time
+"""A pre-faulted heap for the processes of the real-time loop, as real-time
 Linux practice and ros2_control's ``lock_memory`` prepare a control process: memory the
 loop's thread may need later is touched once at start, so that taking a large message
 never waits for the kernel to supply fresh pages.

@@ -1,4 +1,4 @@
-"""A node's parameter services taken off its control thread (issue 25: parameter requests
+"""A node's parameter services taken off its control thread (parameter requests
 never block the control cycle, whatever their size).
 
 rclpy takes a service request on the executor's thread, holding the GIL, and converts all

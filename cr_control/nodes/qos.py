@@ -15,7 +15,7 @@ CONTROL_QOS = QoSProfile(depth=topics.QOS_DEPTH, reliability=ReliabilityPolicy.R
 PUBLISH_QOS = QoSProfile(depth=topics.PUBLISH_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 
 #: A controller's /joint_states: the loop's QoS with a deeper reader history. Its plant's
-#: states must survive a flood from a second publisher (issue 25: 50 000 states as fast as
+#: states must survive a flood from a second publisher (a flood of 50 000 states as fast as
 #: rclpy sends them overwrote them in a history of 10, and the plant's watchdog stopped it);
 #: the node takes what is queued in one wake-up and answers only the newest state of its
 #: plant, so a deep history is no backlog of stale states.

@@ -4,7 +4,7 @@ their callbacks the serialized message, read here by :mod:`cr_control.core.cdr` 
 JointState, ~1.5 µs instead of ~46 µs per WrenchStamped). Bytes that are not plain CDR
 (another encapsulation) go through rclpy's own deserialization, so any sender is read.
 
-Size bounds (issue 25: a 10 MB JointState of 640 000 names took the reader 1.8 s): a node
+Size bounds (measured: a 10 MB JointState of 640 000 names took the reader 1.8 s): a node
 compares a message's length with the largest message it reads (:func:`joint_state_max_bytes`,
 :data:`WRENCH_MAX_BYTES`, :data:`ARRAY_MAX_BYTES`) before reading it, and drops a longer
 one unread.

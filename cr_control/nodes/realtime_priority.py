@@ -9,7 +9,7 @@ both CPUs). Without the privilege (CAP_SYS_NICE, or ``ulimit -r`` / ``@realtime 
 50`` in /etc/security/limits.conf) the process keeps its ordinary scheduling and says so
 once.
 
-Why it is off by default (issue 25, measured on this project's 2-core VM): with every
+Why it is off by default (measured on a 2-core VM, hostile input from ``cr_fuzz``): with every
 loop thread under SCHED_FIFO 50, 2 of 8 ten-second baseline sessions (cr_fuzz, nothing
 sent) had the controller receive nothing for 244-245 ms at t = 2.35-2.47 s and the
 plant's watchdog safe-stopped; with ordinary scheduling 0 of 8 (same day, run back to

@@ -1,6 +1,6 @@
 """A raw subscription whose callback also gets the sender: ``callback(data, gid)`` with the
 serialized message (bytes) and the publishing endpoint's GID (16 bytes), for a node that
-must tell its publishers apart (the plant's one commander at a time, issue 25).
+must tell its publishers apart (the plant's one commander at a time).
 
 rclpy 7.1.6 (Jazzy) hands no publisher GID to Python: a two-argument subscription
 callback gets ``{source_timestamp, received_timestamp, publication_sequence_number,

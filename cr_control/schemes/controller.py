@@ -1,11 +1,11 @@
 """What every control scheme offers the generic controller node and the offline loop.
 
 :meth:`Controller.step` wraps each scheme's :meth:`Controller.compute` with what every
-scheme needs (issue 7, "Controller robustness"): physically absurd inputs are held like
-NaN and the controller recovers on the next good state; integration steps are clamped
-to ``max_dt`` and a gap in stamps restarts the stepping instead of being integrated as
-one step; a non-finite internal state is restored; the status reports the command
-actually sent.
+scheme needs, as libfranka's and ros2_control's checks guard a real arm: physically absurd
+inputs are held like NaN and the controller recovers on the next good state; integration
+steps are clamped to ``max_dt`` and a gap in stamps restarts the stepping instead of being
+integrated as one step; a non-finite internal state is restored; the status reports the
+command actually sent.
 
 A law that fails for good does not keep a command in force: after
 ``max_bad_cycles`` cycles in a row whose output was held because of the law (a
@@ -88,7 +88,7 @@ COMMON_PARAMETERS = [
           "topics (a recorder) acknowledged them, so a recording loses nothing. Leave it off "
           "against a plant in real time: such a wait can last a heartbeat (10 ms).", "bool",
           read_only=True),
-    # Issue 25. 50: the thesis runs have no such cycle but fjr_robust_adaptive with the
+    # 50: the thesis runs have no such cycle but fjr_robust_adaptive with the
     # measured q_m'', whose torque chatters between the two clips (at most 10-24 cycles in a
     # row at one clip for K_s = 10-100 I at 1 kHz); 10 000 = 10 s at 1 kHz.
     Param("max_bad_cycles", 50, "Commands stop after this many cycles in a row in which the "

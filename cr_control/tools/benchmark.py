@@ -18,7 +18,8 @@ Runs, one after another, each on a ROS_DOMAIN_ID of its own (localhost discovery
 6. lockstep sessions (across processes and composed) and the offline loop (no ROS):
    how many times faster than real time the same plant and controller run.
 
-Two ways to carry the cost figures to the machine the targets of issue 6 are stated for:
+Two ways to carry the cost figures to the machine the cost targets are stated for (the
+"before" table of docs/benchmark.md):
 
 - **by the issue's own code** (default; ``--reference REV``): the code the issue measured
   (:data:`REFERENCE_REV`, taken from this repository's git history) runs its own benchmark
@@ -237,8 +238,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"module run as the recorder (default {RECORDER_MODULE}); given several "
                         "times, the recorder load runs each in turn (A/B comparison)")
     p.add_argument("--reference", default=REFERENCE_REV, metavar="REV",
-                   help="git revision of the code issue 6 measured, run by its own benchmark beside "
-                        f"ours to carry the cost targets to the issue's machine (default {REFERENCE_REV})")
+                   help="git revision of the code the 'before' table measured, run by its own "
+                        "benchmark beside ours to carry the cost targets to that table's "
+                        f"machine (default {REFERENCE_REV})")
     p.add_argument("--no-reference", action="store_true",
                    help="no reference run: cost targets by the loop-iteration scaling only")
     p.add_argument("--no-compute-time", action="store_true",

@@ -22,7 +22,7 @@ SCHEME = "adaptive_impedance"
 DISTURBED_PCT = 20.0
 #: ns per plain Python loop iteration of the machine the cost targets are stated for.
 REFERENCE_LOOP_NS = 300.0
-#: The code issue 6 measured its "before" table on (the last commit before the work on it).
+#: The code the "before" table of docs/benchmark.md was measured on (the last commit before the work on it).
 REFERENCE_REV = "0659bc7"
 #: That code's figures in the issue's "before" table: the machine the cost targets are for.
 ISSUE_BEFORE = {"compute_p50_us": 382.0, "plant_step_us": 247.0, "offline_speed": 2.6,
@@ -209,7 +209,7 @@ def scaled_speed(value: float | None, loop_ns: float | None,
 
 
 def reference_scaled(value: float | None, today: float | None, before: float | None) -> float | None:
-    """One of our figures as it would read on the machine of issue 6's "before" table:
+    """One of our figures as it would read on the machine of the "before" table:
     ``value`` × ``before`` / ``today``, where ``today`` is the same figure of the code the
     issue measured (:data:`REFERENCE_REV`), measured in this run, and ``before`` the issue's.
     Costs and speeds alike: the ratio of ours to that code's is what carries over."""

@@ -1,5 +1,5 @@
-"""The benchmark's targets and tables: the real-time layouts and their targets (issue 6 and
-issue 20), the cost targets carried to the issue's machine, and the text tables
+"""The benchmark's targets and tables: the real-time layouts and their targets
+(docs/benchmark.md), the cost targets carried to the "before" table's machine, and the text tables
 :mod:`cr_control.tools.benchmark` prints (real time, speed, recorder load).
 """
 
@@ -26,7 +26,7 @@ from cr_control.tools.benchmark_figures import (
 
 @dataclass
 class Target:
-    """One target of issue 6: what is compared, the measured value, the limit, the verdict."""
+    """One benchmark target: what is compared, the measured value, the limit, the verdict."""
 
     name: str
     value: float | None
@@ -46,7 +46,7 @@ class Target:
 
 def realtime_targets(layout: str, session: dict[str, Any], echo: dict[str, Any],
                      rules: str | None = None) -> list[Target]:
-    """Issue 6's real-time targets of one layout: the session against the echo pair of the
+    """The real-time targets of one layout: the session against the echo pair of the
     same layout, measured in the same run. ``rules``: whose targets ("processes", "composed"
     or "recorder"; default ``layout``'s own)."""
     rules = rules or layout
@@ -75,14 +75,14 @@ class Layout:
     record: bool = False               # both with the recorder (the session's as cr_session runs it)
     robot: str | None = None           # the session on this robot's wiping task (cr_session --robot)
     echo_args: tuple[str, ...] = ()    # echo_pair options: its messages' shape
-    rules: str | None = None           # whose issue 6 targets (realtime_targets); default its name
+    rules: str | None = None           # whose real-time targets (realtime_targets); default its name
     compute_p50_us: float | None = None  # a limit on the controller's compute p50 in the node
 
 
 #: The real-time layouts, in the order they run. The Panda publishes 9 joints (7 arm + 2
 #: locked fingers, :mod:`cr_control.robots`) and is commanded 7: the echo pair carries
-#: messages of that shape, with the recorder as beside the thesis arm; issue 20 (item 7)
-#: asks for issue 6's recorder targets and the controller's compute p50 <= 100 us there. The
+#: messages of that shape, with the recorder as beside the thesis arm; the targets
+#: there: the recorder's, and the controller's compute p50 <= 100 us. The
 #: UR5 runs at ur_robot_driver's 500 Hz (6 joints), its echo pair at the same rate.
 LAYOUTS = (
     Layout("processes", "session processes", "echo processes"),
@@ -104,7 +104,7 @@ def select_layouts(only: Sequence[str] | None = None, skip: Sequence[str] = ()) 
 
 
 def layout_targets(layout: Layout, session: dict[str, Any], echo: dict[str, Any]) -> list[Target]:
-    """The targets of one layout's row: issue 6's real-time ones (:func:`realtime_targets`) and,
+    """The targets of one layout's row: the real-time ones (:func:`realtime_targets`) and,
     where the layout sets one, a limit on the controller's compute p50 in the node, as measured
     (not carried to another machine)."""
     out = realtime_targets(layout.name, session, echo, layout.rules)
@@ -114,7 +114,7 @@ def layout_targets(layout: Layout, session: dict[str, Any], echo: dict[str, Any]
     return out
 
 
-#: Issue 6's cost targets: (name, figure key in ISSUE_BEFORE, comparison, limit, unit).
+#: The cost targets: (name, figure key in ISSUE_BEFORE, comparison, limit, unit).
 COST_TARGETS = (
     ("controller compute p50 in the node", "compute_p50_us", "<=", 100.0, " us"),
     ("plant step, mean", "plant_step_us", "<=", 80.0, " us"),
@@ -125,7 +125,7 @@ COST_TARGETS = (
 
 def cost_figures(session: dict[str, Any], lockstep_composed: dict[str, Any],
                  offline: dict[str, Any]) -> dict[str, float | None]:
-    """The four figures issue 6's cost targets are about, by ISSUE_BEFORE's keys."""
+    """The four figures the cost targets are about, by ISSUE_BEFORE's keys."""
     return {"compute_p50_us": session.get("compute_p50_us"), "plant_step_us": session.get("plant_step_us"),
             "offline_speed": offline.get("speed"), "lockstep_composed_speed": lockstep_composed.get("speed")}
 
@@ -133,7 +133,7 @@ def cost_figures(session: dict[str, Any], lockstep_composed: dict[str, Any],
 def cost_targets(session: dict[str, Any], lockstep_composed: dict[str, Any],
                  offline: dict[str, Any], loop_ns: float | None,
                  reference: dict[str, Any] | None = None) -> list[Target]:
-    """Issue 6's cost targets. With ``reference`` (the issue's own code measured in this run,
+    """The cost targets. With ``reference`` (the "before" code measured in this run,
     :func:`run_reference`), on our figures carried to the issue's machine by that code's
     ratio (:func:`reference_scaled`), followed by the same targets by the loop-iteration
     scaling, marked "[loop scaling]"; without it, by the loop-iteration scaling alone."""

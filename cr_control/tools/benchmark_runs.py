@@ -371,7 +371,7 @@ REFERENCE_DOMAINS = 6
 
 
 def run_reference(rev: str, out: Path, args: argparse.Namespace, progress: Progress) -> dict[str, Any]:
-    """The code issue 6 measured (git revision ``rev`` of this repository) run by its own
+    """The code the "before" table measured (git revision ``rev`` of this repository) run by its own
     benchmark in a subprocess, on this machine, in this run: the four figures of
     :data:`ISSUE_BEFORE` as it measures them today, or {"error": why} (no git history, say).
     Its runs use :data:`REFERENCE_DOMAINS` consecutive domain ids, all held meanwhile."""
@@ -431,8 +431,8 @@ def format_reference(reference: dict[str, Any]) -> str:
     """The issue's code measured in this run beside the issue's own figures of it."""
     if reference.get("error"):
         return f"reference: {reference['error']}; cost targets by the loop-iteration scaling only"
-    lines = [f"reference: the code issue 6 measured ({reference['rev']}), run by its own benchmark "
-             "in this run, against the issue's figures of it",
+    lines = [f"reference: the code the 'before' table measured ({reference['rev']}), run by its "
+             "own benchmark in this run, against that table's figures of it",
              "".ljust(36) + "this run".rjust(12) + "issue".rjust(12) + "ratio".rjust(10)]
     for name, key, _op, _limit, unit in COST_TARGETS:
         today, before = reference.get(key), ISSUE_BEFORE[key]

@@ -1,4 +1,4 @@
-"""cr_identify_tool on a robot: the same poses and least squares through the topics (issue 24).
+"""cr_identify_tool on a robot: the same poses and least squares through the topics.
 
 What a real robot (or a simulated plant over ROS, ``cr_session``) offers: a running
 task-space controller, ``/joint_states`` and the wrist sensor's wrench

@@ -1,5 +1,5 @@
 """cr_identify_tool: the mass, centre of mass and bias of a tool on a wrist force/torque
-sensor, by least squares over a few static poses (issue 24), written as a params file for
+sensor, by least squares over a few static poses, written as a params file for
 the controller.
 
 At rest the sensor (frame S, rotation R_i: base <- S at pose i) reads the tool's weight and

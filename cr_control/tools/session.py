@@ -207,7 +207,7 @@ def session_parameters(cfg: SessionConfig, mcap: Path) -> dict[str, dict[str, An
         + [t for s in schemes for t in (topics.reference_topic(s), topics.status_topic(s))]
         + ([topics.CLOCK] if cfg.mode == "lockstep" else [])
         + ([f"/{s}/transition_event" for s in schemes] if cfg.switch_to else []),
-        # Recorded when they appear, never waited for (issue 22: /diagnostics, markers).
+        # Recorded when they appear, never waited for (/diagnostics, markers).
         "optional_topics": [topics.CLOCK, topics.PLANT_SENSORS, topics.CONTACT_WRENCH, topics.DIAGNOSTICS,
                             topics.PLANT_MARKERS] + [topics.markers_topic(s) for s in schemes],
         "parameter_nodes": ["plant", *schemes],

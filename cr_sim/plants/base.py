@@ -4,8 +4,8 @@ Besides stepping and measuring, a plant says what its actuators may do
 (:meth:`Plant.joint_limits`, from the URDF's ``<limit>`` tags where the plant has a
 Pinocchio model) and how it brakes (:meth:`Plant.safe_stop_command`): the plant node
 builds its command limits (:class:`CommandLimiter`) and its watchdog's safe stop on them
-(issue 7, modelled on libfranka's limits and ``communication_constraints_violation``).
-It also reports what the node's reflexes watch (issue 20, libfranka's Cartesian and joint
+(modelled on libfranka's limits and ``communication_constraints_violation``).
+It also reports what the node's reflexes watch (libfranka's Cartesian and joint
 reflexes): the true contact force (:meth:`Plant.contact_force_magnitude`, against the
 scenario's ``max_contact_force``) and the true joint velocities
 (:meth:`Plant.true_velocity`, against the URDF's ``<limit velocity>``:
@@ -113,7 +113,7 @@ class Plant(ABC):
     #: the plant node sets it from its parameter ``brake_frequency``.
     brake_frequency: float = 50.0
 
-    #: Force reflex (issue 20): the plant node safe-stops the plant when
+    #: Force reflex (libfranka's Cartesian contact reflex): the plant node safe-stops the plant when
     #: :meth:`contact_force_magnitude` exceeds this (N); scenarios set it from their
     #: ``max_contact_force`` parameter (:func:`max_contact_force_parameter`), inf = never.
     max_contact_force: float = math.inf

@@ -4,7 +4,7 @@ Robot: M q'' + C q' + G = tau + J^T (f + f~) (5.1, the disturbed model of 5.3): 
 0.6 m with the centre of mass mid-link (0.3 m), m = 0.1 kg, I = 0.3 kg m^2, gravity along -y.
 
 Environment: the disk (x - 0.8)^2 + (y + 0.4)^2 <= 0.09 (section 5.3), pressed on from
-outside. Contact is unilateral (DESIGN.md, ch. 5): when the tool is inside the circle by
+outside. Contact is unilateral (docs/thesis.md, chapter 5): when the tool is inside the circle by
 delta = R - |r - c| > 0 the surface pushes it out along the outward normal
 n = (r - c)/|r - c| with f = max(K_e delta - D_e n.r', 0) n, and never pulls
 (:mod:`cr_sim.models.surfaces`, CIRCLE). The thesis gives no environment stiffness.

@@ -6,7 +6,7 @@ Phi < 0; when the end effector penetrates it by delta = -Phi/|n| the plane pushe
 along n/|n| with f = K_e delta (3.4 with K_e = 150 I and the rest position the nearest
 surface point), plus optional damping. Contact is unilateral: no pulling force.
 
-Initial state (not given in the thesis, DESIGN.md): at rest at r_e(0) = (-0.05, 0.2),
+Initial state (not given in the thesis; docs/thesis.md): at rest at r_e(0) = (-0.05, 0.2),
 the surface point nearest r_d(0), touching with zero force.
 
 The arm: ``config/two_link_arm.urdf`` by default, or any planar 2-link arm given by the robot

@@ -10,10 +10,10 @@ x = [x_1, x_2, x_3] (x_3 = x_2'), output f:
     B_c = [k_o/b_s, 0, (k_o+k_s)/m_c],  E = [-k_o, -k_s, 0],  D = k_o + k_s
 
 The state-space model is simulated (exactly, :mod:`cr_sim.plants.lti`), not the printed
-transfer-function coefficients (4.4 has typos, DESIGN.md). Contact loss as the thesis says:
+transfer-function coefficients (4.4 has typos; docs/thesis.md). Contact loss as the thesis says:
 the states keep evolving and the force is reported as 0 when f would be negative.
 
-Initial state (DESIGN.md, "initial force 1.5 N"): at rest in equilibrium with f = f_0:
+Initial state (the thesis's "initial force 1.5 N"): at rest in equilibrium with f = f_0:
 delta = delta_c = f_0 (k_c + k_s)/(k_c k_s) (0.225 m in case 1), x = [delta, f_0/k_c, 0].
 
 On the topic contract: one prismatic joint ``delta`` along the surface normal (position
@@ -21,7 +21,7 @@ delta, velocity delta'; effort = the end effector's servo force k (delta_c - del
 wrench carries f as its x component (x = the surface normal, into the constraint; f >= 0
 presses); the command is a position (delta_c). Cases 1/2/3: k_o = k_s = 20/50/80.
 
-Safe stop (the watchdog's and the reflexes' brakes, issue 20). A position-commanded end
+Safe stop (the watchdog's and the reflexes' brakes). A position-commanded end
 effector cannot be braked with torques; its safe stop retracts the command instead:
 
     delta_c = r(t) - (K_d / k) delta'

@@ -13,7 +13,7 @@ of inertia J_m (the reduced model of Spong, [93]):
     theta = q_m - q_l                                                              (6.3)
 
 with the holonomic frictionless constraint (6.4) of the end effector on the rigid line
-x - y + 0.35 = 0 (DESIGN.md: the printed x - y + 0.25 = 0 does not contain the desired
+x - y + 0.35 = 0 (docs/thesis.md: the printed x - y + 0.25 = 0 does not contain the desired
 path). The thesis leaves the scaling of Phi (and so the unit of lambda) implicit; here
 
     Phi(q_l) = n . p_tool(q_l) + 0.35/sqrt(2),   n = (1, -1)/sqrt(2)
@@ -45,7 +45,7 @@ n lambda in the world frame (wrench topic); ``sensors()`` gives lambda, Phi, Phi
 motor accelerations q_m'' (evaluated at the new state with the held command). Only the two
 motor torques are commanded (``command_joint_names``).
 
-Initial state (section 6.3 with DESIGN.md): at rest, theta1(0) = 2.85 and theta2(0) solved
+Initial state (section 6.3, corrected as in docs/thesis.md): at rest, theta1(0) = 2.85 and theta2(0) solved
 exactly onto the surface on the branch of the given theta2's sign (-2.1202: the printed
 -1.77 lies on neither line), so Phi(0) = 0 to round-off; lambda(0) = 2 N; the motors at the
 static equilibrium K_s (q_m0 - q_l0) = G(q_l0) - J_Phi^T lambda_0, and the held command
@@ -126,7 +126,7 @@ PARAMETERS = [
           "normalised, so lambda is the normal force in N and lambda > 0 presses).",
           "vector", 2, read_only=True, bound=Bound.SCALE),
     Param("surface_offset", 0.35,
-          "Offset c of the rigid surface n_raw . p + c = 0 (m * |n_raw|) (DESIGN.md: "
+          "Offset c of the rigid surface n_raw . p + c = 0 (m * |n_raw|) (docs/thesis.md: "
           "x - y + 0.35 = 0, not the printed 0.25).", read_only=True, bound=Bound.LENGTH),
     Param("baumgarte_alpha", 20.0, "Baumgarte damping alpha of the constraint error (1/s).",
           "nonnegative", read_only=True, bound=Bound.BANDWIDTH),
@@ -134,7 +134,7 @@ PARAMETERS = [
           "nonnegative", read_only=True, bound=Bound.BANDWIDTH),
     Param("initial_link_position", [2.85, -2.1202],
           "Link angles q_l at t = 0, at rest (rad): theta1 is kept, theta2 is solved onto the "
-          "surface on the branch of its sign (DESIGN.md: [2.85, -2.1202]; the printed -1.77 "
+          "surface on the branch of its sign (docs/thesis.md: [2.85, -2.1202]; the printed -1.77 "
           "is off the surface).", "vector", 2, read_only=True, bound=Bound.JOINT),
     Param("initial_force", 2.0, "Contact force lambda at t = 0 (N): motors and held torque "
           "start at the static equilibrium G(q_l0) - J_Phi^T lambda_0 (6.3: 2 N).",

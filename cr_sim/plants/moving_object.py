@@ -28,7 +28,7 @@ and the contact force on the end effector n_c lambda (world frame) - the wrench 
 lambda = n_c . force. lambda is evaluated at the new state with the held command (the
 reading just before the next command).
 
-Initial state (the thesis gives none; DESIGN.md): at rest on the desired path of (2.106-
+Initial state (the thesis gives none; docs/thesis.md): at rest on the desired path of (2.106-
 2.107) at t = 0 - object at x_o(0) = 0.1 (1 - sin 12), contact point at x_co(0) = y_co(0)
 = -cos(2)/12, elbow branch sin(theta2) > 0 - with the initial held effort the static one
 tau_0 = G(q0) - J_Phi^T lambda_0, so lambda(0) = lambda_0 = 2 N (= lambda_d) and q''(0) = 0.
@@ -101,7 +101,7 @@ PARAMETERS = [
           "End-effector position x_co on the object's line at t = 0 (m); default: x_co(0) of "
           "(2.106).", read_only=True, bound=Bound.LENGTH),
     Param("elbow_sign", 1.0, "Inverse-kinematics branch at t = 0: sign of sin(theta2) "
-          "(DESIGN.md: s2 > 0).", read_only=True, bound=Bound.SIGN),
+          "(s2 > 0: docs/thesis.md).", read_only=True, bound=Bound.SIGN),
     Param("initial_force", 2.0, "Contact force lambda at t = 0 (N): the initial held effort is "
           "the static one G(q0) - J_Phi^T lambda_0 (default lambda_d = 2 N).", read_only=True,
           bound=Bound.FORCE),

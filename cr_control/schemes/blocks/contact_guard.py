@@ -1,4 +1,4 @@
-"""Contact-ready task-space control (issue 24): a guarded approach, target timeouts and a
+"""Contact-ready task-space control: a guarded approach, target timeouts and a
 contact-stability monitor, inside the compiled reference of every task-space scheme
 (:func:`cr_control.schemes.blocks.references.desired_motion`). Their state lives in the
 packed reference state, so they cost a few floating-point operations per cycle.

@@ -4,7 +4,7 @@
 
 solved exactly as a triangular linear system in (r, s_4..s_0), then P_r = P_r1 B_f (4.64),
 P_t = P_o B_m / b_3 (4.66) and theta_f = [r_3 - o_3 .. r_0 - o_0, s_4 .. s_0, t_4 .. t_0]
-(4.69). Closed forms (DESIGN.md; the printed r_2, r_1, r_0 are wrong): r = o_3 + 2 zeta omega - a_4,
+(4.69). Closed forms (docs/thesis.md; the printed r_2, r_1, r_0 are wrong): r = o_3 + 2 zeta omega - a_4,
 r_3 = r + b_2/b_3, r_2 = (r b_2 + b_1)/b_3, r_1 = (r b_1 + b_0)/b_3, r_0 = r b_0/b_3.
 Polynomials are coefficient arrays, highest power first (numpy.polymul order).
 """
@@ -80,7 +80,7 @@ def residual(sol: dict) -> np.ndarray:
 
 
 def closed_form(theta, zeta: float, omega: float, observer) -> np.ndarray:
-    """theta_f from the corrected closed forms (DESIGN.md) and the printed s_i, t_i (in the
+    """theta_f from the corrected closed forms (module docstring) and the printed s_i, t_i (in the
     arithmetic of the arguments: floats, or Fractions for the exact values)."""
     b3, b2, b1, b0, a4, a3, a2, a1, a0 = theta
     _, o3, o2, o1, o0 = observer

@@ -2,7 +2,7 @@
 
 Inputs: s = n^T e_r' + lambda n^T e_r (5.18) and the normal force error e_fm = f_dm - f_m,
 compared with e_fmin = f_dm - f_max and e_fmax = f_dm - f_min (5.12; the thesis prints
-e_fmax = f_d, DESIGN.md takes f_dm - f_min so that e_fm < e_fmax means f_m > f_min).
+e_fmax = f_d; f_dm - f_min is taken so that e_fm < e_fmax means f_m > f_min).
 
 Rule set 2 (section 5.2):
     s positive, e_fm - e_fmax positive  (f_m below f_min, tool moving in)   -> d_m small

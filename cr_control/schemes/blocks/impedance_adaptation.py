@@ -9,8 +9,8 @@ Their estimates follow the reference model e_m'' + A_m e_m' + B_m e_m = 0 (3.8):
     B_hat = B_hat(0) + Q_b int(varpi e^T)  + Q_b* varpi e^T             (3.13)
 
 Shared by every impedance scheme (3.32, 3.48 with e'^T in the A_hat law as 3.12 and 3.64,
-DESIGN.md; 3.76). P1, P2 are parameters with the printed defaults: they do not solve the
-Lyapunov equation (3.16) for any stated Q (DESIGN.md). The reference model starts at the
+docs/thesis.md; 3.76). P1, P2 are parameters with the printed defaults: they do not solve the
+Lyapunov equation (3.16) for any stated Q (docs/thesis.md). The reference model starts at the
 measured error (e_m(0) = e(0), e_m'(0) = e'(0)), so xi(0) = 0, and is advanced by one
 classical RK4 step per cycle (exact to O(dt^5) for this linear system). The integrals use
 the rectangle rule with the dt of each cycle.

@@ -9,7 +9,7 @@ so f(t + h) = sum_k a[k] h^k + O(h^(K+1)). Products, quotients and the elementar
 then follow from Cauchy-product recurrences (Griewank & Walther, "Evaluating Derivatives",
 ch. 13) that are exact up to rounding: no finite differences, no step size. Use
 :func:`jet_from_derivatives` / :func:`jet_to_derivatives` to convert from / to plain
-derivatives [f, f', f'', ...] (DESIGN.md: the chapter 6 references need q_ld up to its 4th
+derivatives [f, f', f'', ...] (the chapter 6 references need q_ld up to its 4th
 derivative and the desired regressor up to its 2nd, "analytically or by exact
 differentiation, not by noisy finite differences").
 

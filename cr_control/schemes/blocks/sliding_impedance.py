@@ -13,10 +13,10 @@ obeys the adaptively tuned impedance e'' + A_hat e' + B_hat e = c_hat (3.7, 3.46
                                                                   (3.48, 3.76)
 
 with A_hat, B_hat, c_hat from :class:`ImpedanceAdaptation` (3.11-3.14, with e'^T in the
-A_hat law, DESIGN.md). ``[...]^`` is the scheme's estimate of the arm's task-space
+A_hat law; docs/thesis.md). ``[...]^`` is the scheme's estimate of the arm's task-space
 dynamics: a deliberately wrong model (3.48) or RBF networks (3.76).
 
-Sign of D (DESIGN.md: "check the sign convention of D in 3.40"). 3.40 prints
+Sign of D (docs/thesis.md, chapter 3). 3.40 prints
 z' = -D z + ... with D "any negative definite matrix", which makes the compensator
 unstable on its own (z' = +|D| z). Differentiating s (3.41) with z' = -D z + ... gives
 

@@ -247,7 +247,7 @@ def task_model(values: dict, model_free: bool = False) -> TaskModel:
     """The task model of the robot named by the ROBOT_PARAMETERS ``values`` (cached;
     ParameterError with a one-line reason if the robot cannot be built). Its dynamics have no
     gravity where the robot adds g(q) itself (``robot_compensates_gravity``). With a wrist sensor
-    carrying a tool (``sensor_frame`` and ``tool_mass`` > 0, issue 24) the tool replaces what
+    carrying a tool (``sensor_frame`` and ``tool_mass`` > 0) the tool replaces what
     the URDF mounts beyond the sensor (:class:`cr_control.models.urdf.Tool`: a point mass at
     ``tool_com``), as on the arm it carries."""
     frame, mass = values.get("sensor_frame", ""), float(values.get("tool_mass", 0.0))

@@ -1,5 +1,5 @@
 """A wrist force/torque sensor carrying a tool: the contact force the law needs, in the base
-frame, from what the sensor measures in its own frame (issue 24, item 2).
+frame, from what the sensor measures in its own frame.
 
 The sensor sits at the flange (frame S, ``sensor_frame``: ``panda_link8``, ``tool0``) and
 reads, in S, the contact wrench plus the tool's weight plus a bias (the plant's model,

@@ -7,7 +7,7 @@
 with Psi_r = Psi(q^1, q^1', q_r^1', q_r^1''), e^1 = q_d^1 - q^1, r^1 = e^1' + K_e e^1,
 q_r^1' = q_d^1' + K_e e^1 (2.22-2.26), e_lambda = lambda_d - lambda, lambda = n_c . f (the
 wrench carries n_c lambda). Regressor with the Psi_11 correction and "L^-T" the right
-inverse L (L^T L)^-1 of L^T (DESIGN.md): :mod:`cr_control.schemes.closed_chain.moving_object_model`.
+inverse L (L^T L)^-1 of L^T (docs/thesis.md): :mod:`cr_control.schemes.closed_chain.moving_object_model`.
 (2.35) is printed as P~' = ...; the proof (2.39) needs P_hat' = -P~' = Gamma Psi_r^T L r^1.
 
 Section 2.4 gains: K_e = 20 I, K = 15 I, k_lambda = 15, Gamma = 15 I_7,
@@ -75,7 +75,7 @@ class MovingObjectAdaptiveController(mo.MovingObjectController):
         Param("Gamma", matrix(7, 15.0), "Adaptation gain Gamma of (2.35).", "spd", 7, bound=Bound.GAIN),
         Param("P_hat_0", [0.2, 0.01, 0.4, 0.4, 0.1, 0.2, 0.2],
               "Initial estimates P_hat(0) (2.4); true P = [0.6135 0.0045 0.30225 0.441 0.147 "
-              "0.06 0.06] (DESIGN.md).", "vector", 7, read_only=True, bound=Bound.MASS),
+              "0.06 0.06] (docs/thesis.md).", "vector", 7, read_only=True, bound=Bound.MASS),
     ])
     extra_status_fields = mo.STATUS + ESTIMATE_FIELDS
 

@@ -10,11 +10,11 @@ the constraint n_c . r_co = 0 (2.94 with n_c = (n_x, n_y), default (1, -1)/sqrt(
     J^{1T} n_c = [J_1^T n_c ; -n_x]                          (A = I, J_2 = [1 0]^T)
 
 (2.18-2.20; Property 2.1: L^T J^{1T} n_c = 0). L is 3 x 2, so "L^-T" of (2.27) and (2.74)
-is a right inverse of L^T: X = L (L^T L)^-1, L^T X = I (DESIGN.md).
+is a right inverse of L^T: X = L (L^T L)^-1, L^T X = I (docs/thesis.md).
 
 Regressor (2.21) of the reduced model M^1 q_r'' + C^1 q_r' + G^1 = Psi P with
 P = [p1, m2 d1 l2, I2 + m2 l2^2, (m1 l1 + m2 d1) g, m2 l2 g, M2 d1, M2 d2]; true values
-with the corrected geometry (DESIGN.md): [0.6135, 0.0045, 0.30225, 0.441, 0.147, 0.06, 0.06].
+with the corrected geometry (docs/thesis.md): [0.6135, 0.0045, 0.30225, 0.441, 0.147, 0.06, 0.06].
 Psi as printed in section 2.4 except Psi_11 = q_r1'' (printed theta1''); the object row in
 the general form for any rho (the printed Psi_36, Psi_37 for rho = -1):
 
@@ -24,7 +24,7 @@ the general form for any rho (the printed Psi_36, Psi_37 for rho = -1):
 Desired motion (2.106-2.107): x_co = y_co = -A_c cos(w_c t + phi_c) (A_c = 1/12, w_c = 1,
 phi_c = 2) on the line, x_o = c_o - A_o sin(w_o t + phi_o) (c_o = A_o = 0.1, w_o = 4,
 phi_o = 12); the contact point r_c = (x_o + x_co, b + y_co) through the corrected
-inverse kinematics (2.97-2.100 with atan2, branch sin theta2 > 0, DESIGN.md), and the
+inverse kinematics (2.97-2.100 with atan2, branch sin theta2 > 0; docs/thesis.md), and the
 derivatives exactly: q_d' = J_1^-1 r_c', q_d'' = J_1^-1 (r_c'' - J_1' q_d').
 """
 
@@ -41,7 +41,7 @@ from cr_control.core.parameters import Bound, Param, matrix
 from cr_control.core.topics import REFERENCE_FIELDS
 from cr_control.schemes.controller import COMMON_PARAMETERS, Controller
 
-#: The true P of section 2.4 with the corrected geometry (DESIGN.md).
+#: The true P of section 2.4 with the corrected geometry (docs/thesis.md).
 TRUE_P = np.array([0.6135, 0.0045, 0.30225, 0.441, 0.147, 0.06, 0.06])
 #: P as printed in the thesis (p1, p2, p4, p5 rounded or wrong; shown for comparison).
 PRINTED_P = np.array([0.6, 0.04, 0.3, 0.44, 0.15, 0.06, 0.06])
@@ -61,8 +61,8 @@ GEOMETRY_PARAMETERS = [
     Param("constraint_normal", [1.0, -1.0], "Normal of the line on the object, object frame "
           "(2.94: x_co - y_co = 0); normalised to n_c. Needs n_x != 0 and n_y != 0.", "vector", 2,
           read_only=True, bound=Bound.SCALE),
-    Param("elbow_sign", 1.0, "Inverse-kinematics branch of q_d: sign of sin(theta2) (DESIGN.md: "
-          "s2 > 0).", read_only=True, bound=Bound.SIGN),
+    Param("elbow_sign", 1.0, "Inverse-kinematics branch of q_d: sign of sin(theta2) "
+          "(s2 > 0: docs/thesis.md).", read_only=True, bound=Bound.SIGN),
 ]
 
 MOTION_PARAMETERS = [
@@ -166,7 +166,7 @@ def closed_chain(g, q, v):
 
 @njit(cache=True)
 def regressor(g, q, v, qr_dot, qr_ddot):
-    """Psi(q^1, q^1', q_r', q_r'') (3 x 7) of section 2.4 with Psi_11 = q_r1'' (DESIGN.md)."""
+    """Psi(q^1, q^1', q_r', q_r'') (3 x 7) of section 2.4 with Psi_11 = q_r1'' (docs/thesis.md)."""
     nx, ny = g[_N], g[_N + 1]
     rho = ny / nx
     c1, s1 = math.cos(q[0]), math.sin(q[0])

@@ -291,7 +291,7 @@ class FJRRobustAdaptiveController(fjs.FlexibleJointController):
         Param("K_mu", matrix(2, 1.5), "K_mu of mu' = -K_mu mu - J_Phi^T e_lambda (6.32) "
               "(6.3.1: 1.5).", "spd", 2, bound=Bound.GAIN),
         Param("Gamma_p", matrix(N_P, 0.08), "Adaptation gain Gamma_p of p_hat' = Gamma_p "
-              "Psi^T sigma (6.41), 10 x 10 (DESIGN.md: 0.08 I_10; the thesis prints 2 x 2).",
+              "Psi^T sigma (6.41), 10 x 10 (0.08 I_10: the thesis prints 2 x 2; docs/thesis.md).",
               "spd", N_P, bound=Bound.GAIN),
         Param("Gamma_k", matrix(2, 0.08), "Adaptation gain Gamma_k of k_s_inv_hat' = "
               "-Gamma_k phi_2 (6.42) (6.3.1: 0.08).", "spd", 2, bound=Bound.GAIN),
@@ -301,7 +301,7 @@ class FJRRobustAdaptiveController(fjs.FlexibleJointController):
         Param("p_hat_0", list(P_HAT_0) * 2, "Initial estimates p_hat(0) of the 10-parameter "
               "block form (section 6.3: [0.092 0.0007 0.045 0.066 0.022] twice); p_hat "
               "estimates [p / k_s1; p / k_s2], true p = [0.6135 0.0045 0.30225 0.441 0.147] "
-              "(DESIGN.md).", "vector", N_P, read_only=True, bound=Bound.MASS),
+              "(docs/thesis.md).", "vector", N_P, read_only=True, bound=Bound.MASS),
         Param("ks_inv_hat_0", [0.125, 0.125], "Initial estimates k_s_inv_hat(0) of K_s^-1 "
               "(6.21) (rad/(N m)); the thesis gives none: 1 / K_s_hat = 0.125.", "vector", 2,
               read_only=True, bound=100.0),     # a joint softer than 0.01 N m/rad is none

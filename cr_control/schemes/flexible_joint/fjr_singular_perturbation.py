@@ -5,7 +5,7 @@ control (6.102-6.106).
 
 Desired motor motion with the estimate p_hat (6.65-6.67), from the exact jets of the
 desired link motion (Psi_d = Psi(q_ld'', q_ld', q_ld', q_ld), f_d = J_Phi(q_ld)^T lambda_d
-and their first two time derivatives; DESIGN.md: no finite differences):
+and their first two time derivatives, exact: no finite differences):
 
     q_md_hat   = K_s^-1 (Psi_d   p_hat - f_d  ) + q_ld                              (6.65)
     q_md_hat'  = K_s^-1 (Psi_d'  p_hat - f_d' ) + q_ld'                             (6.66)
@@ -83,7 +83,7 @@ Choices the thesis leaves open (parameters, documented):
     adaptation (6.103-6.104), part of that slow control (theorem 6.2.2), is frozen, so
     p_hat stays p_hat(0) in q_md_hat; the filters Z, W still run (z~ is reported).
 
-Constraint force (not in DESIGN.md; found analysing and measuring this law): the thesis's
+Constraint force (found analysing and measuring this law; docs/thesis.md): the thesis's
 reduction (6.80-6.91) drops the constraint-force terms: with z_0, z_1 of (6.80-6.81)
 K_s theta = z_0 - z_1 + J^T e_lambda (printed: - J^T e_lambda) and K_s theta + J^T lambda
 = z_0 - z_1 + J^T lambda_d (printed: z_0 - z_1), so the quasi-steady link model (6.91)
@@ -423,7 +423,7 @@ class FJRSingularPerturbationController(fjs.FlexibleJointController):
               "(lemma 6.2.1); not given in the thesis: 5 chosen (module docstring); must "
               "exceed ||Gamma_0^-1||.", "positive", bound=Bound.GAIN),
         Param("p_hat_0", list(P_HAT_0), "Initial estimates p_hat(0) (6.3); true p = "
-              "[0.6135 0.0045 0.30225 0.441 0.147] (DESIGN.md).", "vector", N_P,
+              "[0.6135 0.0045 0.30225 0.441 0.147] (docs/thesis.md).", "vector", N_P,
               read_only=True, bound=Bound.MASS),
         Param("slow_control", True, "Include the slow adaptive control tau_s (6.102) and "
               "its adaptation (6.103-6.106); false: motor feedback only, p_hat held at "

@@ -3,7 +3,7 @@ perturbation 6.78 + 6.102-6.106) for the 2-link flexible-joint arm on a rigid su
 
 Pure math, compiled (numba, cached), no ROS; every kernel writes into caller-provided
 arrays. Link angles q = q_l = [theta1, theta2]; the arm moves in the vertical plane with
-its base at the origin and gravity along -y. Geometry (DESIGN.md, "Link geometry": ch. 6
+its base at the origin and gravity along -y. Geometry (docs/thesis.md, "Link geometry": ch. 6
 swaps the thesis letters d and l): link lengths l1 = l2 = 0.3 m, centres of mass mid-link.
 
 Model (6.1), Property 6.4 and the regressor (6.120), which is right as printed:
@@ -45,7 +45,7 @@ so W = w * Psi(q'', q', q', q) = alpha Psi_M(q, q') + Fw, where Fw is the filter
 and W(0) = 0 as the convolution over [0, 0] must be. W = alpha Psi_M + Fw is
 filtered_regressor_into. The same filter applied to K_s theta + J^T lambda gives z (6.100).
 
-Rigid surface (6.116 corrected, DESIGN.md): the desired path lies on x - y + 0.35 = 0, not
+Rigid surface (6.116 corrected, docs/thesis.md): the desired path lies on x - y + 0.35 = 0, not
 on the printed x - y + 0.25 = 0, so the constraint is n_raw . p + c = 0 with n_raw = (1, -1),
 c = 0.35. The kernels take the RAW (n_raw, c) and normalise inside:
 
@@ -54,7 +54,7 @@ c = 0.35. The kernels take the RAW (n_raw, c) and normalise inside:
 so that lambda in f = J_Phi^T lambda (6.5) is the normal force in newtons. Passing an already
 normalised pair (n, c / |n_raw|) gives identical results. Partition q^1 = theta1,
 q^2 = theta2 (section 6.3): L = [1, -J_Phi1 / J_Phi2] (6.8); for the default surface
-L2 = -1 - l1 (s1 + c1) / (l2 (s12 + c12)) (the thesis prints a product s12 c12, DESIGN.md).
+L2 = -1 - l1 (s1 + c1) / (l2 (s12 + c12)) (the thesis prints a product s12 c12; docs/thesis.md).
 
 Desired motion (section 6.3): r_d(t) = centre + amplitude cos(omega t + phase) per axis,
 x_d = -0.1 cos 2t, y_d = 0.35 - 0.1 cos 2t, through the inverse kinematics on the branch
@@ -62,7 +62,7 @@ sign(sin theta2) = elbow_sign (-1 in ch. 6):
     c2 = (|r|^2 - l1^2 - l2^2) / (2 l1 l2),  theta2 = elbow_sign acos(c2),
     theta1 = atan2(y, x) - atan2(l2 s2, l1 + l2 c2),
 all evaluated in jets (cr_control.schemes.blocks.jets), so q_ld', q_ld'' ... are exact: they equal
-J_kin^-1 r_d' and J_kin^-1 (r_d'' - J_kin' q_ld') (DESIGN.md; the printed
+J_kin^-1 r_d' and J_kin^-1 (r_d'' - J_kin' q_ld') (docs/thesis.md; the printed
 "q_ld' = J(q_ld) r_d'" misses the inverse). Derivative arrays ("qjet") are laid out
 row k = k-th time derivative, column = joint: shape (K+1, 2), K = 4 for the schemes.
 """
@@ -88,13 +88,13 @@ from cr_control.schemes.blocks.jets import (
     jet_to_derivatives,
 )
 
-#: p of (6.119) with the corrected geometry (DESIGN.md).
+#: p of (6.119) with the corrected geometry (docs/thesis.md, "Link geometry").
 TRUE_P = np.array([0.6135, 0.0045, 0.30225, 0.441, 0.147])
 #: Initial estimate p_hat(0) of section 6.3.
 P_HAT_0 = np.array([0.092, 0.0007, 0.045, 0.066, 0.022])
 N_P = 5
 
-#: Section 6.3 defaults (DESIGN.md corrections applied).
+#: Section 6.3 defaults, with the corrections of docs/thesis.md (chapter 6).
 LINK_LENGTH = np.array([0.3, 0.3])
 SURFACE_NORMAL = np.array([1.0, -1.0])          # raw n_raw of n_raw . p + c = 0
 SURFACE_OFFSET = 0.35                           # raw c (the printed 6.116 has 0.25)
@@ -105,7 +105,7 @@ MOTION_OMEGA = 2.0
 MOTION_PHASE = 0.0
 ELBOW_SIGN = -1.0
 LAMBDA_D = 2.0
-#: q_l(0): theta1 = 2.85 as printed, theta2 on the corrected surface (DESIGN.md).
+#: q_l(0): theta1 = 2.85 as printed, theta2 on the corrected surface (docs/thesis.md).
 Q_L0 = np.array([2.85, -2.1202])
 
 #: Layout of constraint_into's output.

@@ -11,8 +11,8 @@ lambda = n . f from the wrench (the plant reports the contact force n lambda wit
 surface normal n, so lambda is the normal force in N; 6.4-6.5).
 
 Desired motion (section 6.3): r_d(t) = c + a cos(w t + phi) per axis (x_d = -0.1 cos 2t,
-y_d = 0.35 - 0.1 cos 2t), on the surface x - y + 0.35 = 0 (DESIGN.md: not the printed
-0.25), through the inverse kinematics on the branch sin(theta2) < 0 (DESIGN.md), with its
+y_d = 0.35 - 0.1 cos 2t), on the surface x - y + 0.35 = 0 (not the printed
+0.25; docs/thesis.md), through the inverse kinematics on the branch sin(theta2) < 0, with its
 time derivatives up to order 4 taken exactly (Taylor jets,
 :func:`cr_control.schemes.flexible_joint.flexible_joint_model.desired_motion_jets`), never by finite
 differences. lambda_d = 2 N.
@@ -61,10 +61,10 @@ EXTRAS_AT = STATUS_AT + len(STATUS)
 PARAMETERS = [
     Param("state_joint_names", STATE_JOINTS, "Joints read from /joint_states: links q_l, then "
           "motors q_m (6.3), in this order.", "string_list", read_only=True),
-    Param("link_length", [0.3, 0.3], "Link lengths l1, l2 (m) (section 6.3; DESIGN.md).",
+    Param("link_length", [0.3, 0.3], "Link lengths l1, l2 (m) (section 6.3; docs/thesis.md).",
           "positive_vector", 2, read_only=True, bound=Bound.LENGTH),
     Param("surface_normal", [1.0, -1.0], "Raw normal n of the rigid surface n . r + c = 0 "
-          "(x - y + 0.35 = 0, DESIGN.md); normalised, so lambda is the normal force (N).",
+          "(x - y + 0.35 = 0, docs/thesis.md); normalised, so lambda is the normal force (N).",
           "vector", 2, read_only=True, bound=Bound.SCALE),
     Param("surface_offset", 0.35, "c of the surface n . r + c = 0 (m, raw normal).",
           read_only=True, bound=Bound.LENGTH),

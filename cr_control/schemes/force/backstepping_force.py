@@ -8,7 +8,7 @@ c = [h_1, h_2] and no nonlinear damping; it keeps the d alpha_1/d v terms that t
 (4.47) leaves out (see there). Defaults are section 4.3's: h_1 = h_2 = 2, gamma = 0.01,
 Gamma = diag(45, 60, 60, 60, 45, 45, 45, 45, 10), lambda = [12 5 15 2 4], initial estimates
 0.65 x the printed nominal theta = [20 200.3 8 40 20.04 21.52 27.01 0.9 8] and 0.65 x
-d = 0.05. The printed nominal theta matches the true one only in b and a_4 (DESIGN.md);
+d = 0.05. The printed nominal theta matches the true one only in b and a_4 (docs/thesis.md);
 ``INITIAL_ESTIMATES`` has both choices (printed nominal, 0.65 x the true theta of each case).
 Case 4 (no adaptation) is gamma = 0, Gamma = 0 (config/backstepping_force_case4.yaml).
 
@@ -31,7 +31,7 @@ N, P = SIZES.n, SIZES.p
 
 #: The nominal theta printed in section 4.3 (matches the true one only in b and a_4).
 PRINTED_NOMINAL_THETA = [20.0, 200.3, 8.0, 40.0, 20.04, 21.52, 27.01, 0.9, 8.0]
-#: True theta of cases 1-3 (from the state-space model, DESIGN.md).
+#: True theta of cases 1-3 (from the state-space model (4.2-4.3, 4.5); docs/thesis.md).
 TRUE_THETA = {
     1: [20.0, 200.4, 8.0, 40.0, 20.045, 2.4005, 22.045, 1.0, 6.0],
     2: [50.0, 1251.0, 35.0, 250.0, 50.045, 4.9505, 85.09, 3.1, 30.0],

@@ -20,7 +20,7 @@ Ioannou & Sun, sec. 4.3.4; the regressor of the bilinear model is [phi; xi]):
 
 Defaults (section 4.3): zeta = 0.7, omega = 0.5, P_o = p^4 + 19p^3 + 65p^2 + 77p + 30,
 gamma_f = 0.8, initial estimates 0.65 x the true theta_f and 0.65 x b_3 of case 1. The
-printed true theta_f is wrong in r_2..r_0 and the s_i (DESIGN.md): the defaults use the
+printed true theta_f is wrong in r_2..r_0 and the s_i (docs/thesis.md): the defaults use the
 solution of (4.65) at the true case-1 theta (:mod:`cr_control.schemes.blocks.diophantine`).
 The filters start at rest (zero) unless ``bumpless_start`` (steady state for the first
 measured f, f_d and delta_c = delta(0)); the reference model starts at the first measured f.

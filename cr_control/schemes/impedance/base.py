@@ -32,7 +32,7 @@ offline, no reflex): a target pose 10 m up made the reference ask 17.5 m/s, the 
 3 m/s and the law saturated and braked; a 1e6 N target wrench pressed 231 N before braking;
 a quaternion of norm 1e200 became zeros.
 
-Wrist sensor (issue 24): with ``sensor_frame``, ``tool_mass``, ``ft_bias`` or
+Wrist sensor: with ``sensor_frame``, ``tool_mass``, ``ft_bias`` or
 ``zero_ft_at_start`` set, the wrench given to :meth:`compute` (force, or force and torque, in
 the sensor frame) becomes the contact force in the base frame, f = R_S (F_S - b_F) - m g,
 before the law sees it; :meth:`zero_ft` zeroes the bias

@@ -10,7 +10,7 @@ set 2 (:mod:`cr_control.schemes.blocks.fuzzy`):
 
 Section 5.3 values as defaults: m_m = 1.2, d_s = 5, d_med = 15, d_b = 25, lambda = 5,
 k_p = k_n = 1, f_dm = 10 N, f_max = 12 N, f_min = 1 N. e_fmax = f_dm - f_min (the thesis
-prints e_fmax = f_d; DESIGN.md). The rules are written for f_min < f_dm < f_max and
+prints e_fmax = f_d; docs/thesis.md). The rules are written for f_min < f_dm < f_max and
 d_s < d_med < d_b; other values are accepted and give what (5.20) gives. d_m is a static
 map of the measured state: the law has no internal state. One compiled call per cycle
 (:func:`fuzzy_unidirectional_cycle`).
@@ -45,7 +45,7 @@ FUZZY_PARAMETERS = [
     Param("f_max", 12.0, "Largest contact force allowed f_max (N): e_fmin = f_dm - f_max (5.12) "
           "(section 5.3: 12).", "nonnegative", bound=Bound.FORCE),
     Param("f_min", 1.0, "Smallest contact force wanted f_min (N): e_fmax = f_dm - f_min (5.12, "
-          "DESIGN.md) (section 5.3: 1).", "nonnegative", bound=Bound.FORCE),
+          "docs/thesis.md) (section 5.3: 1).", "nonnegative", bound=Bound.FORCE),
 ]
 
 

@@ -9,7 +9,7 @@ instead of 0.3 and 0.1, i.e. ``model_inertia_scale`` 2/3 and ``model_mass_scale`
 URDF's (on any URDF arm the same scales apply to every link). Compensator z (3.40,
 3.43-3.45), s (3.41), r_eq (3.49-3.50), the boundary layer (remark 3.3.1) and the D sign convention are in
 :mod:`cr_control.schemes.blocks.sliding_impedance`; the impedance estimates follow 3.61-3.65 with
-e'^T in the A_hat law (3.48 prints e^T; DESIGN.md) through
+e'^T in the A_hat law (3.48 prints e^T; docs/thesis.md) through
 :mod:`cr_control.schemes.blocks.impedance_adaptation`.
 
 The printed bounds dM = 0.1, dC = 0.1 (3.36-3.37) do not bound the real model errors of
