@@ -233,7 +233,10 @@ def test_the_saturating_thesis_run_never_stops_commanding(ks):
 def node():
     context = Context()
     rclpy.init(context=context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
-    controller = ControllerNode("adaptive_impedance", context=context)
+    # states of the test's own GIDs, no graph behind them: the first valid publisher is
+    # followed (state_source empty; the rule by node name: test_state_source)
+    controller = ControllerNode("adaptive_impedance", context=context, parameter_overrides=[
+        rclpy.parameter.Parameter("state_source", value="")])
     controller.published = []
     controller.command_pub.publish = controller.published.append     # what reaches the plant
     yield controller
@@ -284,8 +287,8 @@ def test_an_oversized_joint_state_is_dropped_unparsed(node, monkeypatch):
     big = serialize_message(JointState(name=[f"j{i:09d}" for i in range(640_000)]))
     assert len(big) > 10_000_000
     parsed = []
-    read = node._read_state
-    monkeypatch.setattr(node, "_read_state", lambda data: parsed.append(len(data)) or read(data))
+    read = node.inputs.read_state
+    monkeypatch.setattr(node.inputs, "read_state", lambda data: parsed.append(len(data)) or read(data))
     node._on_joint_state(state(0), GID_A)
     node._on_joint_state(big, GID_A)                         # logged (once per 5 s)
     start = time.perf_counter()
@@ -298,7 +301,7 @@ def test_an_oversized_joint_state_is_dropped_unparsed(node, monkeypatch):
     node._on_joint_state(many, GID_A)
     print(f"\n10 MB JointState dropped in {took * 1e6:.1f} us")
     assert took < 1e-3
-    assert parsed == [len(state(0))] and node.inputs_oversized == 4
+    assert parsed == [len(state(0))] and node.inputs.inputs_oversized == 4
     node._on_joint_state(state(2), GID_A)                    # the next good state: answered
     assert len(node.published) == 2 and status(node)["inputs_oversized"] == 4
 
@@ -308,24 +311,25 @@ def test_states_from_a_second_publisher_are_ignored_until_the_first_falls_silent
     warned = []
     monkeypatch.setattr(node.get_logger(), "warn", lambda msg, **_: warned.append(msg))
     node._on_joint_state(state(0), GID_A)                    # the first answered: followed
-    assert node.source == GID_A and len(node.published) == 1
+    assert node.state_source.source == GID_A and len(node.published) == 1
     parsed = []
-    read = node._read_state
-    monkeypatch.setattr(node, "_read_state", lambda data: parsed.append(1) or read(data))
+    read = node.inputs.read_state
+    monkeypatch.setattr(node.inputs, "read_state", lambda data: parsed.append(1) or read(data))
     for k in range(1, 101):                                  # 100 foreign, well-formed states
         node._on_joint_state(state(k, position=(0.0, 0.0)), GID_B)
         if k % 10 == 0:
             node._on_joint_state(state(k), GID_A)
-    assert node.states_foreign == 100 and len(node.published) == 11 and len(parsed) == 10
-    assert sum("another publisher" in w for w in warned) == 1
+    assert node.inputs.states_foreign == 100 and len(node.published) == 11 and len(parsed) == 10
+    assert sum("refused unread" in w for w in warned) == 1
     command = deserialize_message(node.published[-1], JointState)
     assert (command.header.stamp.sec, command.header.stamp.nanosec) == (7, 100_000_000)
     # the followed one silent for SOURCE_SILENCE_S: the other is followed from its next state
-    node._source_seen -= SOURCE_SILENCE_S + 0.01
+    node.state_source.last_heard -= SOURCE_SILENCE_S + 0.01
     node._on_joint_state(state(101, position=(3.0, -2.4)), GID_B)
-    assert node.source == GID_B and node.source_handovers == 1 and len(node.published) == 12
+    assert node.state_source.source == GID_B and node.inputs.source_handovers == 1
+    assert len(node.published) == 12
     node._on_joint_state(state(102), GID_A)                  # now the old one is foreign
-    assert node.states_foreign == 101 and len(node.published) == 12
+    assert node.inputs.states_foreign == 101 and len(node.published) == 12
     assert status(node)["states_foreign"] == 100 and status(node)["source_handovers"] == 1
 
 
@@ -340,7 +344,7 @@ def test_a_node_behind_its_plant_answers_only_the_newest_state(node):
     for k in (1, 2, 3):
         node._on_joint_state(state(k), GID_A)
     node._state_sub.newer_queued = False
-    assert node.states_skipped == 3 and len(node.published) == 1
+    assert node.inputs.states_skipped == 3 and len(node.published) == 1
     node._on_joint_state(state(4), GID_A)
     command = deserialize_message(node.published[-1], JointState)
     assert len(node.published) == 2 and command.header.stamp.nanosec == 4_000_000
@@ -354,8 +358,8 @@ def test_an_inactive_node_reads_one_state_and_answers_the_newest_at_activation(n
     node.trigger_deactivate()
     assert not node.active
     reads = []
-    read = node._read_state
-    monkeypatch.setattr(node, "_read_state", lambda data: reads.append(data) or read(data))
+    read = node.inputs.read_state
+    monkeypatch.setattr(node.inputs, "read_state", lambda data: reads.append(data) or read(data))
     for k in range(50):
         node._on_joint_state(state(k), GID_A)
     assert len(reads) == 1 and node.published == []
@@ -377,13 +381,13 @@ def test_a_wrench_beyond_max_sensor_force_is_a_sensor_fault(node, monkeypatch):
         msg.wrench.force.x, msg.wrench.force.y = fx, fy
         return serialize_message(msg)
 
-    node._on_wrench(wrench(4.0, -3.0))
+    node.inputs.wrench_message(wrench(4.0, -3.0))
     for bad in (1e12, -1e12, math.nan, math.inf, 1e200):
-        node._on_wrench(wrench(bad))
-        assert node.force.tolist() == [4.0, -3.0, 0.0]       # the last sane reading
-    assert node.sensor_faults == 5 and len(warned) == 1 and "max_sensor_force 1000" in warned[0]
-    node._on_wrench(wrench(600.0, 800.0))                    # |f| = 1000 N: on the bound, sane
-    assert node.force.tolist() == [600.0, 800.0, 0.0]
+        node.inputs.wrench_message(wrench(bad))
+        assert node.inputs.force.tolist() == [4.0, -3.0, 0.0]       # the last sane reading
+    assert node.inputs.sensor_faults == 5 and len(warned) == 1 and "max_sensor_force 1000" in warned[0]
+    node.inputs.wrench_message(wrench(600.0, 800.0))                    # |f| = 1000 N: on the bound, sane
+    assert node.inputs.force.tolist() == [600.0, 800.0, 0.0]
     node._on_joint_state(state(0), GID_A)
     assert status(node)["sensor_faults"] == 5 and len(node.published) == 1
 

@@ -35,14 +35,14 @@ def fields(names, position, velocity) -> JointStateFields:
 
 @pytest.mark.ros
 def test_joint_arrays_in_our_order_or_empty_when_unusable(node):
-    q, v = node._joint_arrays(fields(["joint2", "joint1"], [2.0, 1.0], [20.0, 10.0]))
+    q, v = node.inputs.joint_arrays(fields(["joint2", "joint1"], [2.0, 1.0], [20.0, 10.0]))
     np.testing.assert_array_equal(q, [1.0, 2.0])
     np.testing.assert_array_equal(v, [10.0, 20.0])
-    q, v = node._joint_arrays(fields(["joint1", "joint2", "extra"], [1.0, 2.0, 3.0], [0.0] * 3))
+    q, v = node.inputs.joint_arrays(fields(["joint1", "joint2", "extra"], [1.0, 2.0, 3.0], [0.0] * 3))
     np.testing.assert_array_equal(q, [1.0, 2.0])
     for bad in (fields(["joint1", "elbow"], [1.0, 2.0], [0.0, 0.0]),       # a joint missing
                 fields(["joint1", "joint2"], [1.0, 2.0], [0.0])):          # lengths differ
-        q, v = node._joint_arrays(bad)
+        q, v = node.inputs.joint_arrays(bad)
         assert q.size == 0 and v.size == 0
 
 
@@ -50,11 +50,11 @@ def test_joint_arrays_in_our_order_or_empty_when_unusable(node):
 def test_unreadable_bytes_are_ignored_and_the_next_state_answered(node):
     node._on_joint_state(b"\x00\x01\x00\x00 not a joint state")
     node._on_joint_state(b"")
-    assert not node._answered
+    assert not node.inputs.answered
     msg = JointState(name=["joint1", "joint2"], position=[3.0358, -2.4401], velocity=[0.0, 0.0])
     msg.header.stamp.sec, msg.header.stamp.nanosec = 7, 5_000_000
     node._on_joint_state(serialize_message(msg))
-    assert node._answered
+    assert node.inputs.answered
     command = deserialize_message(node._command_bytes, JointState)
     assert (command.header.stamp.sec, command.header.stamp.nanosec) == (7, 5_000_000)
     assert list(command.name) == ["joint1", "joint2"] and len(command.effort) == 2
@@ -103,14 +103,14 @@ def test_a_lockstep_state_before_the_plants_interface_is_answered_once_it_comes(
     from std_msgs.msg import String
 
     node = lockstep_node
-    assert node._pacer is not None and node._interface == "unknown"
-    node._plant_advertises = lambda: True                   # the interface is on its way
+    assert node._pacer is not None and node.inputs.interface == "unknown"
+    node.inputs.plant_advertises = lambda: True                   # the interface is on its way
     msg = JointState(name=["joint1", "joint2"], position=[3.0358, -2.4401], velocity=[0.0, 0.0])
     msg.header.stamp.sec, msg.header.stamp.nanosec = 0, 0
     node._on_joint_state(serialize_message(msg))
-    assert not node._answered
-    node._on_plant_interface(String(data="effort"))
-    assert node._answered
+    assert not node.inputs.answered
+    node.plant_interface.on_interface(String(data="effort"))
+    assert node.inputs.answered
     command = deserialize_message(node._command_bytes, JointState)
     assert (command.header.stamp.sec, command.header.stamp.nanosec) == (0, 0)
 

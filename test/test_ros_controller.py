@@ -27,8 +27,9 @@ QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 def controller():
     domain = next_domain()
     env = isolated_env(domain_id=domain)
-    proc = subprocess.Popen([sys.executable, "-m", "cr_control.nodes.controller_node", NODE],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "cr_control.nodes.controller_node", NODE,
+                             "--ros-args", "-p", "state_source:=/test_probe"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     probe = RosProbe(domain)
     commands, status = [], []
     probe.node.create_subscription(JointState, topics.JOINT_COMMANDS, commands.append, QOS)
@@ -173,7 +174,8 @@ def test_position_scheme_checks_the_advertised_interface(ros_env):
     from cr_control.nodes.qos import READY_QOS
 
     proc = subprocess.Popen([sys.executable, "-m", "cr_control.nodes.controller_node",
-                             "backstepping_force"], env=ros_env, stdout=subprocess.PIPE,
+                             "backstepping_force", "--ros-args", "-p", "state_source:=/test_probe"],
+                            env=ros_env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     probe = RosProbe(int(ros_env["ROS_DOMAIN_ID"]))
     failure = None

@@ -1,7 +1,8 @@
-"""Issue 25, items 2 and 3: a controller follows one /joint_states writer at the DDS level
-(cr_control/nodes/state_source.py). A second publisher's states, a 10 MB one among them,
-never reach the controller; it is reported; once the followed publisher has left, the
-controller subscribes again and follows the other."""
+"""A controller follows one /joint_states publisher, by rule (cr_control/supervision/
+single_source.py, cr_control/nodes/state_source.py): the node named by state_source, from
+its first valid state. A publisher already on the domain that stays silent, or another
+node's states (a 10 MB one among them), never capture the loop; they are refused, counted
+and reported; a restarted plant is followed again."""
 
 from __future__ import annotations
 
@@ -27,6 +28,8 @@ from cr_control.core.ros_env import (
 )
 from cr_control.nodes import state_source
 from cr_control.nodes.state_source import StateSourceWatch
+from cr_control.supervision.rate_limited_log import RateLimitedLog
+from cr_control.supervision.single_source import SingleSource
 
 NODE = "adaptive_impedance"
 QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -53,14 +56,21 @@ def diagnostic_value(arrays: list, key: str) -> str | None:
 
 
 @pytest.mark.ros
-def test_a_second_publisher_never_reaches_the_controller_and_takes_over_once_the_first_left():
+def test_the_controller_follows_the_plant_by_rule_not_a_publisher_already_there():
+    """An intruder with a silent /joint_states publisher is on the domain before the
+    controller starts; the controller follows the node named by state_source (/plant,
+    here a probe of that name) from its first valid state. The intruder's states (one of
+    10 MB, then 50 well-formed ones) are refused unread and counted; it is reported on
+    /diagnostics; when the plant's publisher leaves, the intruder is still not followed,
+    and a new publisher of the plant (a restarted plant) is, after SOURCE_SILENCE_S."""
     domain = next_domain()
     env = isolated_env(domain_id=domain)
     assert env.get(DDS_PROFILE_VARIABLE) == str(NODE_DDS_PROFILE)    # conftest: as in sessions
+    intruder = RosProbe(domain, "intruder")
+    second = intruder.node.create_publisher(JointState, topics.JOINT_STATES, QOS)   # silent
     proc = subprocess.Popen([sys.executable, "-m", "cr_control.nodes.controller_node", NODE],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    probe = RosProbe(domain)
-    intruder = RosProbe(domain, "intruder")
+    probe = RosProbe(domain, "plant")
     failure = None
     try:
         commands, status, diagnostics = [], [], []
@@ -80,28 +90,33 @@ def test_a_second_publisher_never_reaches_the_controller_and_takes_over_once_the
             probe.spin_until(lambda: any(stamp_ns(c) == stamp for c in commands), timeout=0.05)
             return any(stamp_ns(c) == stamp for c in commands)
 
-        assert probe.spin_until(lambda: answered(first), timeout=30), "the first is not answered"
-        # A second publisher: one 10 MB state, then well-formed states of its own stamps.
-        second = intruder.node.create_publisher(JointState, topics.JOINT_STATES, QOS)
-        intruder.spin_until(lambda: second.get_subscription_count() > 0, timeout=5)
+        assert probe.spin_until(lambda: answered(first), timeout=30), "the plant is not answered"
         n = HUGE_ENTRIES
         second.publish(JointState(name=[f"j{i:06d}" for i in range(n)], position=[0.0] * n,
                                   velocity=[0.0] * n))
         foreign = [next(stamps) for _ in range(50)]
         for stamp in foreign:
             second.publish(state(stamp))
-        for _ in range(200):                             # the first goes on meanwhile
-            assert answered(first), "the first publisher's state went unanswered"
+        for _ in range(200):                             # the plant goes on meanwhile
+            assert answered(first), "the plant's state went unanswered"
         assert probe.spin_until(lambda: diagnostic_value(diagnostics, "unfollowed_publishers")
-                                == "1", timeout=10), "the second publisher was not reported"
+                                == "1", timeout=10), "the intruder was not reported"
+        assert probe.spin_until(lambda: topics_field(status[-1], "states_foreign") == 50
+                                and answered(first), timeout=10), "foreign states not counted"
         assert not {stamp_ns(c) for c in commands} & set(foreign)
         last = status[-1]
-        for field in ("inputs_oversized", "states_foreign", "source_handovers"):
-            assert topics_field(last, field) == 0, field    # its states never came in
-        # The first leaves: the controller subscribes again and follows the second.
+        assert topics_field(last, "inputs_oversized") == 1           # the 10 MB one, unread
+        assert topics_field(last, "source_handovers") == 0
+        # The plant's publisher leaves: the intruder is still refused; a new publisher of
+        # the plant's node is followed once the old one has been silent SOURCE_SILENCE_S.
         node.destroy_publisher(first)
-        assert probe.spin_until(lambda: answered(second, intruder), timeout=30), \
-            "the second publisher was not followed after the first left"
+        for _ in range(30):
+            assert not answered(second, intruder), "the intruder was followed"
+        restarted = node.create_publisher(JointState, topics.JOINT_STATES, QOS)
+        assert probe.spin_until(lambda: answered(restarted), timeout=30), \
+            "the plant's new publisher was not followed"
+        assert probe.spin_until(lambda: topics_field(status[-1], "source_handovers") == 1
+                                and answered(restarted), timeout=10)
     except AssertionError as exc:
         failure = exc
     finally:
@@ -109,73 +124,64 @@ def test_a_second_publisher_never_reaches_the_controller_and_takes_over_once_the
         probe.close()
         _, out = stop_node(proc)
     assert failure is None, f"{failure}; the node printed:\n{out[-3000:]}"
-    assert out.count("publisher(s) on /joint_states not followed") == 1, out[-3000:]
-    assert out.count("subscribing again") == 1, out[-3000:]
+    assert "following node '/plant'" in out, out[-3000:]
+    assert "node '/intruder'" in out and "only '/plant' is followed" in out, out[-3000:]
 
 
 def topics_field(msg, name: str) -> float:
     return msg.data[topics.fields_of(msg.layout.dim[0].label).index(name)]
 
 
-# -- the watch alone (no graph: a node and a subscription of its own) -------------------
+# -- the watch alone (no graph: a node of its own) ---------------------------------------
 class FakeNode:
     def __init__(self):
-        self.publishers, self.logged = 0, []
+        self.infos, self.logged = [], []
         self.timer = None
 
     def create_timer(self, period, callback):
         self.timer = callback
         return callback
 
-    def count_publishers(self, topic):
-        return self.publishers
+    def get_publishers_info_by_topic(self, topic):
+        return self.infos
 
     def get_logger(self):
         return SimpleNamespace(warn=lambda m: self.logged.append(("warn", m)),
                                info=lambda m: self.logged.append(("info", m)))
 
 
-def test_the_watch_reports_unfollowed_publishers_and_resubscribes_only_when_orphaned(monkeypatch):
-    clock = [100.0]
-    monkeypatch.setattr(state_source.time, "perf_counter", lambda: clock[0])
-    node, sub = FakeNode(), SimpleNamespace(matched=1, topic_name="/joint_states")
-    sub.get_publisher_count = lambda: sub.matched
-    last_state, made = [100.0], []
-    watch = StateSourceWatch(node, lambda: sub, lambda: made.append(clock[0]),
-                             lambda: last_state[0], silence_s=2.0)
+def info(gid: bytes, name: str, namespace: str = "/"):
+    return SimpleNamespace(endpoint_gid=list(gid), node_name=name, node_namespace=namespace)
 
-    def tick(dt=0.5, state_too=False):
-        clock[0] += dt
-        if state_too:
-            last_state[0] = clock[0]
-        watch.tick()
 
-    node.publishers = 1
-    tick(state_too=True)
-    assert watch.unfollowed == 0 and not node.logged
-    node.publishers = 3                                  # two others appear: one warning
-    for _ in range(4):
-        tick(state_too=True)
-    assert watch.unfollowed == 2 and [level for level, _ in node.logged] == ["warn"]
-    assert "2 publisher(s) on /joint_states not followed" in node.logged[0][1]
-    sub.matched, node.publishers = 0, 2                  # the followed one left
-    tick(1.0)                                            # 1 s without a state: not yet
-    tick(0.5)
-    assert not made
-    tick(0.5)                                            # 2 s silent, orphaned 1 s: again
-    assert made == [clock[0]] and watch.resubscriptions == 1
-    tick(0.5)
-    assert len(made) == 1                                # orphaned again: wait ORPHANED_S
-    tick(state_source.ORPHANED_S)
-    assert len(made) == 2
-    sub.matched = 1                                      # matched: never while one is
-    for _ in range(10):
-        tick()
-    assert len(made) == 2
-    sub.matched, node.publishers = 0, 0                  # nobody there: nothing to match
-    for _ in range(10):
-        tick()
-    assert len(made) == 2
+def test_the_watch_names_publishers_for_the_guard_and_reports_the_unfollowed():
+    node = FakeNode()
+    log = RateLimitedLog(lambda severity, text: None)
+    lookups = []
+    guard = SingleSource(topics.JOINT_STATES, {"/plant"}, 2.0,
+                         lambda gid: lookups.append(gid), log)
+    watch = StateSourceWatch(node, topics.JOINT_STATES, guard)
+    plant, intruder, unknown = b"P" * 16, b"I" * 16, b"U" * 16
+    node.infos = [info(intruder, "intruder"), info(plant, "plant"),
+                  info(unknown, state_source.UNKNOWN_NODE, "_NODE_NAMESPACE_UNKNOWN_")]
+    watch.tick()
+    assert watch.unfollowed == 3 and len(node.logged) == 1       # nothing followed yet
+    assert "3 publisher(s)" in node.logged[0][1] and "/intruder" in node.logged[0][1]
+    assert "only /plant is followed" in node.logged[0][1]
+    assert guard.name(plant) == "/plant" and guard.name(intruder) == "/intruder"
+    assert lookups == []                                          # named by the watch
+    assert guard.admit(plant, 0.0)
+    guard.heard(plant, 0.0)
+    watch.tick()
+    assert watch.unfollowed == 2 and len(node.logged) == 1        # fewer: no new warning
+    node.infos = node.infos[:2]
+    watch.tick()
+    node.infos.append(info(b"X" * 16, "another"))
+    watch.tick()
+    assert watch.unfollowed == 2 and len(node.logged) == 1        # not above the last warned
+    node.infos += [info(b"Y" * 16, "yet_another"), info(b"Z" * 16, "and_another")]
+    watch.tick()                                                  # 4, above the 3 warned
+    assert watch.unfollowed == 4 and len(node.logged) == 2 and "/and_another" in node.logged[1][1]
 
 
 def test_the_recorder_drops_only_our_own_profiles():

@@ -56,22 +56,17 @@ def test_an_infinite_period_logs_each_key_once_and_a_negative_one_is_refused():
         RateLimitedLog(lambda s, t: None, math.nan)
 
 
-def test_logger_emit_reaches_warn_or_warning():
-    class Py:                                 # logging.Logger has warning, not warn
-        def __init__(self):
-            self.got = []
+def test_logger_emit_calls_one_method_per_severity():
+    got = []
 
-        def warning(self, text):
-            self.got.append(("warning", text))
+    class Logger:
+        def __getattr__(self, name):
+            return lambda text: got.append((name, text))
 
-        def error(self, text):
-            self.got.append(("error", text))
-
-    py = Py()
-    emit = logger_emit(py)
-    emit("warn", "a")
-    emit("error", "b")
-    assert py.got == [("warning", "a"), ("error", "b")]
+    emit = logger_emit(Logger())
+    for severity in ("error", "warn", "info", "debug"):
+        emit(severity, severity[0])
+    assert got == [("error", "e"), ("warn", "w"), ("info", "i"), ("debug", "d")]
 
 
 def test_names_of_a_parameter():
@@ -159,3 +154,27 @@ def test_a_publisher_that_cannot_be_known_is_admitted():
     assert g.admit(None, 0.0) and g.admit(b"", 0.0)
     g.heard(None, 0.0)
     assert g.source is None and g.refused == 0
+
+
+def test_the_plant_expects_the_controllers_of_this_package_by_default():
+    from cr_control.schemes.registry import SCHEMES
+    from cr_control.supervision.plant_commander import (
+        COMMANDER_PARAMETER,
+        CONTROLLER_NODES,
+        commander_guard,
+    )
+
+    assert sorted(CONTROLLER_NODES) == sorted(SCHEMES)
+    lines = []
+    graph = {PLANT: "/adaptive_impedance", INTRUDER: "/fuzz_intruder"}
+    g = commander_guard(COMMANDER_PARAMETER.default, 50, graph.get,
+                        lambda severity, text: lines.append((severity, text)))
+    for k in range(1000):                     # the intruder's 1e308 commands, first
+        assert not g.admit(INTRUDER, k)
+    assert g.admit(PLANT, 1000)
+    g.heard(PLANT, 1000)
+    assert not g.admit(INTRUDER, 1001) and not g.admit(INTRUDER, 5000)
+    assert g.refused == 1002 and g.source == PLANT
+    refusals = [text for _, text in lines if "refused unread" in text]
+    assert len(refusals) == 2                 # once per kind: by the rule, then foreign
+    assert "node '/fuzz_intruder'" in refusals[0] and "commands_foreign" in refusals[0]

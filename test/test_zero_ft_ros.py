@@ -41,7 +41,7 @@ def test_zero_ft_service(ros_env):
     executable = Path(sys.executable).with_name("adaptive_impedance")
     controller = start_node([str(executable)], ros_env, "--params-file",
                             str(config_file("robots/panda_ft/adaptive_impedance.yaml")),
-                            "-p", "zero_ft_at_start:=false")
+                            "-p", "zero_ft_at_start:=false", "-p", "state_source:=/zero_ft_probe")
     try:
         node = probe.node
         wrench_pub = node.create_publisher(WrenchStamped, topics.WRENCH, QOS)

@@ -105,7 +105,7 @@ class ControllerDiagnostics(_Publisher):
         self.publish(self.rules.status(ControllerWindow(
             cycles=n, compute_s=times, period_s=period, held_cycles=c.held_cycles,
             restored_cycles=c.restored_cycles, commanding=c.commanding, stops=c.stops,
-            states_foreign=node.states_foreign, inputs_oversized=node.inputs_oversized,
-            sensor_faults=node.sensor_faults, states_seen=self._seen,
+            states_foreign=node.inputs.states_foreign, inputs_oversized=node.inputs.inputs_oversized,
+            sensor_faults=node.inputs.sensor_faults, states_seen=self._seen,
             active=getattr(node, "active", True),
             unfollowed_publishers=node.source_watch.unfollowed)))

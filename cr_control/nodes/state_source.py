@@ -1,92 +1,86 @@
-"""A controller's one source of /joint_states at the DDS level (issue 25, item 3).
+"""The publishers of a controller's /joint_states as the ROS graph shows them.
 
-The nodes' Fast DDS profile (:data:`cr_control.core.ros_env.NODE_DDS_PROFILE`) lets a
-reader of /joint_states match one writer at most (``matchedPublishersAllocation``, maximum
-1): the samples of a second publisher never enter the controller's reader, so neither a
-10 MB state nor a flood from it costs the control thread anything. Before, rmw copied a
-10 MB state twice on that thread before any code of ours could see its length (12-27 ms
-of missed cycles); a flood cost one take per message.
+The controller follows one publisher of its states, chosen by rule
+(:mod:`cr_control.supervision.single_source`): the first that delivers a valid state and
+belongs to the node named by ``state_source``. Its reader matches every writer on the
+topic, so that the rule, not the order in which DDS discovered them, decides: a writer
+matched first that never publishes (a silent intruder) keeps nobody out. A state of any
+other publisher is refused unread on its GID (one bytes comparison; a message longer than
+a ``max_joints`` state is not even copied to Python: :mod:`cr_control.nodes.sender_aware`).
 
-Fast DDS matches a writer only when it discovers it, and never later when the reader's
-one slot frees. So :class:`StateSourceWatch`, off the hot path (a timer, every
-``period_s``), compares the publishers the ROS graph knows on the topic with the writers
-the reader matched, and:
+Off the hot path (a timer, every ``period_s``), :class:`StateSourceWatch` asks the graph
+for the topic's publishers (``get_publishers_info_by_topic``: endpoint GID -> node name and
+namespace) and
 
-- reports the publishers not followed: one warning each time their number grows, and
-  :attr:`StateSourceWatch.unfollowed` for the node's diagnostics;
-- when the followed writer has left (none matched, a publisher present, no state for
-  ``silence_s``: a restarted plant, a switched driver), makes the subscription again, so
-  that DDS matches a writer present now (``resubscriptions``, one info line each). A
-  publisher left unmatched for ORPHANED_S is taken to be refused; one just discovered is
-  matched long before.
-
-A writer that left cleanly is unmatched at once; one whose process died is unmatched when
-its participant's lease ends (Fast DDS: 20 s by default). Where the profile is not in
-force (a user's own Fast DDS profile, a remapped topic), every writer is matched and the
-node's own guard (``states_foreign``: states of any other publisher are ignored unread)
-still follows one source; this watch then reports nothing.
+- tells the single-source guard each publisher's node, so that the hot path seldom needs
+  a graph query of its own (:meth:`SingleSource.known`);
+- counts the publishers not followed (:attr:`StateSourceWatch.unfollowed`, on
+  /diagnostics) and warns, naming their nodes, each time their number grows.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 from rclpy.node import Node
 
-#: A writer the graph shows is matched within milliseconds when the reader's slot is free:
-#: one present but unmatched for this long (s) was refused (the slot was taken).
-ORPHANED_S = 1.0
+from cr_control.supervision.single_source import SingleSource, full_node_name
+
+#: The name rmw gives an endpoint whose node it does not know (yet).
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
+
+
+def publishers(node: Node, topic: str) -> list[tuple[bytes, str]]:
+    """(endpoint GID, full node name) of every publisher on ``topic`` the graph knows; the
+    name "" for one whose node is not known yet."""
+    out = []
+    for info in node.get_publishers_info_by_topic(topic):
+        name = "" if info.node_name == UNKNOWN_NODE else \
+            full_node_name(info.node_namespace, info.node_name)
+        out.append((bytes(info.endpoint_gid), name))
+    return out
+
+
+def publisher_node(node: Node, topic: str, gid: bytes) -> str | None:
+    """The full node name of publisher ``gid`` on ``topic`` (None if the graph does not know
+    it or its node yet)."""
+    for endpoint, name in publishers(node, topic):
+        if endpoint == gid:
+            return name or None
+    return None
 
 
 class StateSourceWatch:
-    """Watches the matched writers of ``subscription()`` against the graph's publishers.
+    """Names the publishers on ``topic`` for ``guard`` (then calls ``named()``) and counts
+    those not followed (module docstring); ``guard`` None (publishers cannot be told
+    apart): counts only."""
 
-    ``subscription``: returns the node's current state subscription (anything with
-    ``get_publisher_count()`` and ``topic_name``); ``resubscribe``: makes it again;
-    ``last_state``: ``time.perf_counter()`` of the last state followed (-inf if none)."""
-
-    def __init__(self, node: Node, subscription: Callable[[], object],
-                 resubscribe: Callable[[], None], last_state: Callable[[], float],
-                 silence_s: float, period_s: float = 0.5) -> None:
-        self.node = node
-        self.subscription, self.resubscribe = subscription, resubscribe
-        self.last_state, self.silence_s = last_state, silence_s
-        #: Publishers on the topic that the reader did not match (the last check).
+    def __init__(self, node: Node, topic: str, guard: SingleSource | None,
+                 named: Callable[[], None] = lambda: None, period_s: float = 0.5) -> None:
+        self.node, self.topic, self.guard, self.named = node, topic, guard, named
+        #: Publishers on the topic other than the one followed (the last check).
         self.unfollowed = 0
-        #: Times the subscription was made again after its writer left.
-        self.resubscriptions = 0
         self._reported = 0                    # the largest ``unfollowed`` warned about
-        self._orphaned_since = None           # perf_counter: none matched, one present
         self.timer = node.create_timer(period_s, self.tick)
 
     def tick(self) -> None:
         """One check (see the module docstring)."""
-        sub = self.subscription()
-        if sub is None:                       # not subscribed yet (discovery_settle)
-            return
-        matched = sub.get_publisher_count()
-        present = self.node.count_publishers(sub.topic_name)
-        self.unfollowed = max(0, present - matched)
+        found = publishers(self.node, self.topic)
+        guard = self.guard
+        followed = guard.source if guard is not None else None
+        others = [(gid, name) for gid, name in found if gid != followed]
+        if guard is not None:
+            for gid, name in found:
+                if name:
+                    guard.known(gid, name)
+            self.named()
+        self.unfollowed = len(others) if guard is not None else max(0, len(found) - 1)
         if self.unfollowed > self._reported:
+            names = sorted({name or "a node unknown yet" for _, name in others})
+            rule = (f"only {' or '.join(sorted(guard.expected))} is followed"
+                    if guard is not None and guard.expected else
+                    "the first that delivers a valid state is followed")
             self.node.get_logger().warn(
-                f"{self.unfollowed} publisher(s) on {sub.topic_name} not followed: this "
-                "controller takes the states of one publisher, the first it matched; another "
-                f"is followed only after that one has left and {self.silence_s:g} s passed "
-                "without a state")
+                f"{self.unfollowed} publisher(s) on {self.topic} not followed ({', '.join(names)}): "
+                f"{rule}, one at a time; their states are refused and counted in states_foreign")
         self._reported = max(self._reported, self.unfollowed) if self.unfollowed else 0
-        now = time.perf_counter()
-        if matched or not present:
-            self._orphaned_since = None
-            return
-        if self._orphaned_since is None:
-            self._orphaned_since = now
-        silent = now - self.last_state()
-        if silent >= self.silence_s and now - self._orphaned_since >= ORPHANED_S:
-            self.resubscriptions += 1
-            self._orphaned_since = None
-            self.node.get_logger().info(
-                f"{sub.topic_name}: the publisher followed has left and {present} other(s) "
-                f"are present, none of them matched: subscribing again "
-                f"(no state for {min(silent, 1e6):.1f} s)")
-            self.resubscribe()

@@ -31,10 +31,17 @@ PERIOD_S = 5.0
 
 def logger_emit(logger) -> Emit:
     """An :data:`Emit` onto a logger with ``debug``/``info``/``warn``/``error`` methods
-    (rclpy's, or a :class:`logging.Logger`: ``warn`` falls back to ``warning``)."""
+    (rclpy's, or a :class:`logging.Logger`). One call site per severity: rclpy's logger
+    refuses two severities from one line of code."""
     def emit(severity: str, text: str) -> None:
-        method = getattr(logger, severity, None) or logger.warning
-        method(text)
+        if severity == "error":
+            logger.error(text)
+        elif severity == "warn":
+            logger.warn(text)
+        elif severity == "info":
+            logger.info(text)
+        else:
+            logger.debug(text)
     return emit
 
 
