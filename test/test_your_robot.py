@@ -175,7 +175,8 @@ def test_a_controller_drives_a_ros2_control_robot(ros_env, probe):
     controller = start_node([str(executable)], ros_env, "--params-file",
                             str(config_file("robots/panda_ft/adaptive_impedance.yaml")),
                             "-p", f"forward_command_topic:={FORWARD_TOPIC}",
-                            "-p", f"joint_names:=[{', '.join(FORWARD_JOINTS)}]")
+                            "-p", f"joint_names:=[{', '.join(FORWARD_JOINTS)}]",
+                            "-p", "state_source:=/stand_in_robot")   # as joint_state_broadcaster
     try:
         node = probe.node
         connected = run_until(probe, robot, lambda: controller.poll() is not None or (
