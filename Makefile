@@ -61,9 +61,10 @@ BENCH_JSON ?= $(OUT)/benchmark.json
 benchmark: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/cr_benchmark --json $(BENCH_JSON) $(BENCH_ARGS)
 
-## Hostile and careless input (issue 25) against recorded real-time sessions, one row per
-## case (alive, finite, max |q'|, safe stop, resumed, verdict), ~5 min; FUZZ_ARGS e.g.
-## "--cases huge_joint_state,second_commander".
+## Hostile and careless input: the tools alone (robot descriptions, files, command lines;
+## --suite inputs, ~1 min) and recorded real-time sessions on the thesis arm and on panda_ft,
+## one row per case (alive, finite, max |q'|, max |f|, safe stop, resumed, verdict), ~10 min;
+## FUZZ_ARGS e.g. "--suite robot" or "--cases huge_joint_state,second_commander".
 FUZZ_ARGS ?=
 fuzz: $(STAMP)
 	$(BIN)/python -m cr_control.tools.warm_up adaptive_impedance

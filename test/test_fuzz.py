@@ -64,9 +64,44 @@ def test_every_row_of_the_issue_is_a_case():
     assert fuzz.CASE_NAMES[0] == "baseline"
 
 
+def test_the_round_two_session_cases_run_on_the_robot_after_its_baseline():
+    """Targets out of reach, wrench targets, the zeroing walk and the silent intruder: the
+    robot suite, judged against its own baseline on panda_ft."""
+    robot = [case for case in fuzz.CASES if case.suite == "robot"]
+    assert {case.name for case in robot} == {
+        "robot_baseline", "target_10_m", "target_1e300_m", "target_quaternion_1e200",
+        "target_nan", "wrench_target_1e6", "wrench_pull_away", "zeroing_walk", "silent_intruder"}
+    assert fuzz.SUITES["robot"] == ("robot_baseline", "panda_ft")
+    assert {case.name for case in robot if case.force_judged} == {
+        "target_nan", "wrench_pull_away", "zeroing_walk"}
+    assert [case.name for case in robot if case.prepare is not None] == ["silent_intruder"]
+    assert all(case.suite == "session" for case in fuzz.CASES[:len(fuzz.CASES) - len(robot)])
+
+
+def test_force_and_speed_are_judged_where_the_case_says():
+    base = fuzz.Row("robot_baseline", True, True, 1.0, False, True, 3.0, max_force=10.0)
+    pressing = fuzz.Case("x", "x", lambda intruder: None, suite="robot", force_judged=True)
+    moving = fuzz.Case("x", "x", lambda intruder: None, suite="robot", speed_judged=False)
+    assert fuzz.verdict(row(max_force=14.0), pressing, base) == "survived"      # <= 1.2 x 10 + 2
+    assert fuzz.verdict(row(max_force=14.1), pressing, base).startswith("FAILED: max |f| 14.1 N")
+    assert fuzz.verdict(row(max_force=math.nan), pressing, base).startswith("FAILED: max |f|")
+    assert fuzz.verdict(row(max_force=40.0), CASE, base) == "survived"
+    assert fuzz.verdict(row(max_speed=3.0), moving, base) == "survived"
+    assert fuzz.verdict(row(max_speed=3.0), CASE, base).startswith("FAILED: max |q'|")
+    itself = fuzz.Case("robot_baseline", "x", lambda intruder: None, suite="robot")
+    assert fuzz.verdict(row(max_speed=3.0), itself, base) == "survived"      # not against itself
+
+
+def test_the_table_has_a_force_column():
+    text = fuzz.format_rows([row(case="baseline", max_force=12.34, verdict="survived")],
+                            {"baseline": fuzz.CASES[0]})
+    assert "max|f| N" in text.splitlines()[0] and "    12.3 " in text.splitlines()[2]
+
+
 @pytest.mark.ros
 @pytest.mark.parametrize("args, message", [
     (["--cases", "nope"], "unknown case(s) nope"),
+    (["--suite", "nope"], "unknown suite(s) nope"),
     (["--duration", "1"], "--duration must be"),
     (["--robot", "r2d2"], "unknown robot"),
 ])

@@ -25,10 +25,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import yaml
-from mcap.reader import make_reader
-from rclpy.serialization import serialize_message
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
 
 from cr_control.analysis import analyze
 from cr_control.analysis.session_file import load_session
@@ -38,30 +34,18 @@ from cr_control.experiments.spec import SpecError, read_yaml
 from cr_control.recording import mcap_writer, recorder
 from cr_control.recording.mcap_writer import McapBagWriter
 from cr_control.tools import identify_tool, lifecycle_tool, param_tool
+from cr_control.tools.fuzz_inputs import (
+    alias_bomb,
+    corrupt_zstd_chunk,
+    flipped_bit_in_chunk,
+    foreign_schema,
+    joint_state,
+    two_types,
+    write_states,
+)
+from cr_control.tools.fuzz_inputs import chunk_indexes as chunks
 
-JOINTS = ["joint1", "joint2"]
 MESSAGES = 400
-
-
-def joint_state(i: int) -> bytes:
-    msg = JointState(name=JOINTS, position=[0.001 * i, -0.001 * i], velocity=[0.1, 0.2])
-    msg.header.stamp.sec, msg.header.stamp.nanosec = 100 + i // 1000, (i % 1000) * 1_000_000
-    return serialize_message(msg)
-
-
-def write_states(path: Path, compression: str = "zstd", n: int = MESSAGES) -> McapBagWriter:
-    """/joint_states in small chunks (several of them), as the recorder writes it."""
-    writer = McapBagWriter(path, compression=compression, chunk_size=4096)
-    channel = writer.add_topic(topics.JOINT_STATES, "sensor_msgs/msg/JointState", has_header=True)
-    for i in range(n):
-        writer.write(channel, joint_state(i), 1_000_000_000 + i * 1_000_000)
-    writer.close()
-    return writer
-
-
-def chunks(path: Path) -> list:
-    with open(path, "rb") as f:
-        return make_reader(f).get_summary().chunk_indexes
 
 
 def one_error_line(capsys, prefix: str) -> str:
@@ -75,17 +59,8 @@ def one_error_line(capsys, prefix: str) -> str:
 
 def test_a_corrupt_compressed_chunk_is_one_line(tmp_path, capsys):
     path = tmp_path / "corrupt.mcap"
-    write_states(path)
-    index = chunks(path)
-    assert len(index) >= 3
-    middle = index[len(index) // 2]
-    data = bytearray(path.read_bytes())
-    # the chunk record's fields (53 bytes with "zstd"), then its zstd frame: its header and
-    # first block header overwritten (zstd frames carry no checksum of the data itself)
-    at = middle.chunk_start_offset + 53
-    assert data[at:at + 4] == b"\x28\xb5\x2f\xfd"                 # the zstd magic
-    data[at + 4:at + 36] = b"\xa5" * 32
-    path.write_bytes(bytes(data))
+    corrupt_zstd_chunk(path)
+    assert len(chunks(path)) >= 3
     assert analyze.main([str(path), "--no-plots"]) == 2
     line = one_error_line(capsys, f"cr_analyze: error: {path}: damaged MCAP file")
     assert "corrupt record" in line
@@ -93,7 +68,8 @@ def test_a_corrupt_compressed_chunk_is_one_line(tmp_path, capsys):
 
 def test_a_chunk_naming_an_unknown_channel_is_one_line(tmp_path, capsys):
     """An uncompressed chunk whose message names a channel the file does not have (what a
-    flipped byte does to it): the mcap reader's KeyError, as one line."""
+    flipped byte does to it), its CRC stored as 0 (none: unchecked, else the CRC check
+    refuses it first): the mcap reader's KeyError, as one line."""
     path = tmp_path / "channel.mcap"
     write_states(path, compression="none")
     data = bytearray(path.read_bytes())
@@ -101,44 +77,36 @@ def test_a_chunk_naming_an_unknown_channel_is_one_line(tmp_path, capsys):
     head = struct.pack("<BQH", 0x05, 22 + len(joint_state(0)), 1)      # a Message on channel 1
     at = data.index(head, middle.chunk_start_offset)
     data[at + 9:at + 11] = struct.pack("<H", 0xBEEF)
+    crc = middle.chunk_start_offset + 33               # opcode, length, 3 x u64, then the CRC
+    data[crc:crc + 4] = struct.pack("<I", 0)
     path.write_bytes(bytes(data))
     assert analyze.main([str(path), "--no-plots"]) == 2
     line = one_error_line(capsys, f"cr_analyze: error: {path}: damaged MCAP file")
     assert "KeyError" in line
 
 
+def test_a_flipped_bit_inside_a_chunk_is_one_line(tmp_path, capsys):
+    """One bit of a velocity flipped inside an uncompressed chunk (the message still decodes:
+    0.1 rad/s as 1.8e307 rad/s): the chunk's CRC-32 refuses it."""
+    path = tmp_path / "flipped.mcap"
+    flipped_bit_in_chunk(path)
+    assert analyze.main([str(path), "--no-plots"]) == 2
+    line = one_error_line(capsys, f"cr_analyze: error: {path}: damaged MCAP file, a chunk's data "
+                                  "fails its CRC-32 check (stored 0x")
+    assert line.endswith("): changed since it was written")
+
+
 def test_joint_states_recorded_with_two_types_is_one_line(tmp_path, capsys):
-    from mcap.writer import Writer
-
-    from cr_control.recording.definitions import message_definition
-
     path = tmp_path / "two_types.mcap"
-    with open(path, "wb") as f:
-        w = Writer(f)
-        w.start("ros2", "test")
-        for i, (type_name, data) in enumerate((
-                ("sensor_msgs/msg/JointState", joint_state(0)),
-                ("std_msgs/msg/Float64MultiArray", serialize_message(Float64MultiArray(data=[1.0]))))):
-            encoding, text = message_definition(type_name)
-            schema = w.register_schema(type_name, encoding, text.encode())
-            channel = w.register_channel(topics.JOINT_STATES, "cdr", schema)
-            w.add_message(channel, i, data, i)
-        w.finish()
+    two_types(path)
     assert analyze.main([str(path), "--no-plots"]) == 2
     line = one_error_line(capsys, f"cr_analyze: error: {path}: /joint_states")
     assert "two types" in line and "std_msgs/msg/Float64MultiArray" in line
 
 
 def test_joint_states_with_a_schema_of_other_fields_is_one_line(tmp_path, capsys):
-    from mcap_ros2.writer import Writer
-
     path = tmp_path / "other_schema.mcap"
-    with open(path, "wb") as f:
-        w = Writer(f)
-        schema = w.register_msgdef("sensor_msgs/msg/JointState", "string data")
-        for i in range(3):
-            w.write_message(topics.JOINT_STATES, schema, {"data": "x"}, log_time=i, publish_time=i)
-        w.finish()
+    foreign_schema(path)
     assert analyze.main([str(path), "--no-plots"]) == 2
     line = one_error_line(capsys, f"cr_analyze: error: {path}: /joint_states")
     assert "schema is not ROS's" in line
@@ -191,13 +159,6 @@ def test_a_named_pipe_is_refused_without_waiting(tmp_path, capsys):
 
 
 # -- cr_sweep, cr_tune: YAML ---------------------------------------------------------------
-
-def alias_bomb(levels: int) -> str:
-    """``levels`` lists of ten aliases of the one before: 10^levels values in a few lines."""
-    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
-    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, levels)]
-    return "\n".join(lines) + "\n"
-
 
 def test_any_alias_is_refused_with_where_it_is():
     with pytest.raises(yaml.YAMLError) as info:

@@ -41,46 +41,15 @@ from cr_control.models.urdf import (
     RobotModelError,
     check_urdf,
     load_chain,
-    resolve_urdf_file,
 )
 from cr_control.schemes.registry import make_controller
+from cr_control.tools.fuzz_inputs import LINK7, PANDA_BASE, PANDA_TIP, chain, panda_urdf, panda_with
 from cr_sim.loop_stats import SAFE_STOP_CONTACT_FORCE, SAFE_STOP_JOINT_VELOCITY
 from cr_sim.plant_node import reflex
 from cr_sim.plants.registry import SCENARIOS, make_plant
 
-PANDA_FILE = "package://example-robot-data/robots/panda_description/urdf/panda.urdf"
-PANDA = resolve_urdf_file(PANDA_FILE).read_text()
-BASE, TIP = "panda_link0", "panda_hand_tcp"
-LINK7 = ('<mass value="0.735522"/>\n            <inertia ixx="0.012516" ixy="-0.000428" '
-         'ixz="-0.001196" iyy="0.010027" iyz="-0.000741" izz="0.004815"/>')
-
-
-def panda_with(old: str, new: str) -> str:
-    """The Panda's URDF with the first ``old`` replaced by ``new``."""
-    assert old in PANDA, old
-    return PANDA.replace(old, new, 1)
-
-
-def chain(depth: int, branches: bool = False) -> str:
-    """A URDF chain of ``depth`` revolute joints (base_link ... l<depth>, tool0); with
-    ``branches`` every link also carries a side link on a joint of its own (a tree)."""
-    inertial = ('<inertial><origin xyz="0 0 0.05"/><mass value="0.1"/><inertia ixx="1e-4" ixy="0" '
-                'ixz="0" iyy="1e-4" iyz="0" izz="1e-4"/></inertial>')
-    parts = ['<?xml version="1.0"?><robot name="chain"><link name="base_link"/>']
-
-    def joint(name: str, parent: str, child: str) -> str:
-        return (f'<link name="{child}">{inertial}</link><joint name="{name}" type="revolute">'
-                f'<parent link="{parent}"/><child link="{child}"/><origin xyz="0 0 0.01"/>'
-                '<axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="10" velocity="2"/></joint>')
-
-    for i in range(1, depth + 1):
-        parent = "base_link" if i == 1 else f"l{i - 1}"
-        parts.append(joint(f"j{i}", parent, f"l{i}"))
-        if branches:
-            parts.append(joint(f"b{i}", parent, f"s{i}"))
-    parts.append(f'<link name="tool0"/><joint name="tool0_joint" type="fixed"><parent link="l{depth}"/>'
-                 '<child link="tool0"/></joint></robot>')
-    return "".join(parts)
+PANDA = panda_urdf()
+BASE, TIP = PANDA_BASE, PANDA_TIP
 
 
 def refusal(xml: str, base: str = BASE, tip: str = TIP) -> str:

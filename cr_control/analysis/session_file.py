@@ -21,7 +21,7 @@ import yaml
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.stream_reader import CRCValidationError, StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
 from cr_control.core import ros_yaml, topics
@@ -167,14 +167,17 @@ def _iter_messages(path: Path, warnings: list[str], metadata: dict[str, dict[str
                    ) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """Messages in file order (filling ``metadata``); tolerates a file cut short.
 
-    The one place the mcap reader reads the file. On damaged data it raises more than its
-    own errors (a corrupt chunk: a decompression error, a KeyError for a channel id the
-    summary lacks, an OverflowError for a length too large to read, ...): whatever it
-    raises ends the reading, as a SessionError if the file has a summary (it claims to be
-    complete), as a warning if it was cut short (read as far as the data goes).
+    The one place the mcap reader reads the file. Every chunk's data is checked against the
+    CRC-32 its writer stored (the MCAP format's ``uncompressed_crc``; 0: none stored), so a
+    flipped bit in a chunk is a SessionError, never decoded as values. On damaged data the
+    reader raises more than its own errors (a corrupt chunk: a decompression error, a
+    KeyError for a channel id the summary lacks, an OverflowError for a length too large to
+    read, ...): whatever it raises ends the reading, as a SessionError if the file has a
+    summary (it claims to be complete), as a warning if it was cut short (read as far as
+    the data goes).
     """
     with open(path, "rb") as f:
-        reader = make_reader(f)
+        reader = make_reader(f, validate_crcs=True)
         try:
             summary = reader.get_summary()
         except Exception:
@@ -183,6 +186,8 @@ def _iter_messages(path: Path, warnings: list[str], metadata: dict[str, dict[str
             try:
                 metadata.update({m.name: dict(m.metadata) for m in reader.iter_metadata()})
                 yield from reader.iter_messages(log_time_order=False)
+            except CRCValidationError as exc:
+                raise SessionError(_crc_failure(path, exc)) from None
             except Exception as exc:
                 raise SessionError(f"{path}: damaged MCAP file, stopped at a corrupt record "
                                    f"({_reason(exc)})") from exc
@@ -193,7 +198,7 @@ def _iter_messages(path: Path, warnings: list[str], metadata: dict[str, dict[str
         channels: dict[int, Channel] = {}
         count = 0
         try:
-            for record in StreamReader(f, skip_magic=False).records:
+            for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
                 if isinstance(record, Schema):
                     schemas[record.id] = record
                 elif isinstance(record, Channel):
@@ -204,8 +209,17 @@ def _iter_messages(path: Path, warnings: list[str], metadata: dict[str, dict[str
                     yield schemas.get(channel.schema_id), channel, record
                 elif isinstance(record, Metadata):
                     metadata[record.name] = dict(record.metadata)
+        except CRCValidationError as exc:
+            raise SessionError(_crc_failure(path, exc)) from None
         except Exception as exc:
             warnings.append(f"file ends early ({_reason(exc)}); read {count} messages")
+
+
+def _crc_failure(path: Path, exc: CRCValidationError) -> str:
+    """The one line for a record whose data does not match the CRC stored with it."""
+    what = "a chunk's data" if type(exc.record).__name__ == "Chunk" else "its data section"
+    return (f"{path}: damaged MCAP file, {what} fails its CRC-32 check (stored "
+            f"{exc.expected:#010x}, computed {exc.actual:#010x}): changed since it was written")
 
 
 def _stamp(msg: Any) -> float:

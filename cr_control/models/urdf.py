@@ -274,6 +274,9 @@ def resolve_urdf_file(name: str) -> Path:
         path = Path(name).expanduser()
         if not path.is_absolute() and not path.exists() and (config_dir() / name).exists():
             path = config_dir() / name
+    if path.exists() and not path.is_file():    # a pipe would block its reader for ever
+        raise RobotModelError(f"urdf_file {name}: not a regular file (a directory, pipe, device "
+                              "or socket)")
     if not path.is_file():
         raise RobotModelError(f"urdf_file {name}: no such file")
     return path

@@ -1,16 +1,29 @@
-"""cr_fuzz: hostile and careless input against a running real-time session (issue 25).
+"""cr_fuzz: hostile and careless input against the tools and running real-time sessions.
 
-Each case runs a recorded real-time session (plant, controller, recorder: ``cr_session``'s
-processes on a domain of their own) while this process's own node, which joined the
-domain before the session started, sends one kind of bad input two plant-timing
-messages (~2 s) after the plant began: parameters beyond their bounds, a second
-commander, a second source of joint states, a 10 MB JointState, a 10^6-element
-parameter request, a 10^12 N wrench, processes joining the domain. The recording then
-says what happened, one row per case:
+Three suites (``--suite``), each printing a table:
+
+- ``inputs``: robot descriptions, files and command lines (:mod:`cr_control.tools.fuzz_inputs`):
+  each tool run as a process of its own under resource limits; no ROS session. CI runs
+  these (``test/test_fuzz_inputs.py``).
+- ``session``: on the scheme's thesis plant (or ``--robot``): parameters beyond their bounds,
+  a second commander, a second source of joint states, a 10 MB JointState, a 10^6-element
+  parameter request, a 10^12 N wrench, processes joining the domain.
+- ``robot``: on the Panda with a wrist sensor (``panda_ft``): pose targets out of reach (10 m,
+  1e300 m, a quaternion of norm 1e200, NaN), wrench targets (1e6 N, pulled away then
+  pressing), ~/zero_ft called over and over while pressing, and a node with a silent
+  /joint_states publisher and a /joint_commands publisher on the domain before the session
+  starts that then commands 1e308 N m.
+
+Each session case runs a recorded real-time session (plant, controller, recorder:
+``cr_session``'s processes on a domain of their own) while this process's own node, which
+joined the domain before the session started, sends one kind of bad input two
+plant-timing messages (~2 s) after the plant began. The recording then says what
+happened, one row per case:
 
 - alive: every process ran to the end (none died, the plant finished its run);
 - finite: every recorded joint position and velocity is finite;
 - max |q'|: the largest joint speed after the first second (rad/s or m/s);
+- max |f|: the largest true contact force after the first second (N; robot plants);
 - safe stop: the plant's safe stop engaged (``/plant/timing``);
 - resumed: the controller commands at the end (none of its commands stopped, and the
   last timing window's share of fresh commands at least RESUMED_SHARE of the baseline
@@ -18,14 +31,17 @@ says what happened, one row per case:
   window to window; how well the loop runs is the miss column's);
 - miss: the longest run of plant ticks without a new command (ms at 1 kHz);
 - verdict: ``survived`` when alive, finite, no safe stop, resumed, max |q'| within the
-  baseline run's (same scheme, nothing sent) times SPEED_MARGIN plus SPEED_FLOOR, and,
-  for the cases the issue holds to it, the miss within the baseline's plus the case's
-  margin; else ``FAILED`` with the first reason.
+  suite's baseline run's (same scheme and robot, nothing sent) times SPEED_MARGIN plus
+  SPEED_FLOOR (not for a target that moves the arm on purpose), for the force-judged
+  cases max |f| within the baseline's times FORCE_MARGIN plus FORCE_FLOOR, and, for the
+  cases held to it, the miss within the baseline's plus the case's margin; else
+  ``FAILED`` with the first reason.
 
-The baseline runs first. Exit status 0 if every case survived, 1 if one did not, 2 on a
-usage error.
+Each session suite's baseline runs first. Exit status 0 if every case survived (or was
+refused, for the inputs), 1 if one did not, 2 on a usage error.
 
-    cr_fuzz                       # every case, adaptive_impedance on the ch. 3 arm, 8 s each
+    cr_fuzz                       # every case, adaptive_impedance, 8 s sessions
+    cr_fuzz --suite inputs        # the tools alone, ~1 min
     cr_fuzz --cases second_commander,huge_joint_state --duration 6
 """
 
@@ -67,13 +83,20 @@ class Case:
     """One kind of bad input: ``send(intruder)`` sends it; ``miss_margin`` (ms): the case's
     longest miss may exceed the baseline's by this much (None: not judged); ``extra_s``:
     the session runs this much longer (an input that takes seconds to send, so that the
-    controller's resumption is judged after it)."""
+    controller's resumption is judged after it); ``suite``: the group it runs in (its
+    baseline and robot: SUITES); ``prepare(intruder)``: what the intruder does before the
+    session starts; ``speed_judged``: max |q'| judged against the baseline's (a target
+    that moves the arm on purpose is not); ``force_judged``: the true contact force too."""
 
     name: str
     what: str
     send: Callable[[Intruder], None]
     miss_margin: float | None = None
     extra_s: float = 0.0
+    suite: str = "session"
+    prepare: Callable[[Intruder], None] | None = None
+    speed_judged: bool = True
+    force_judged: bool = False
 
 
 class Intruder:
@@ -103,7 +126,8 @@ class Intruder:
         self._state_sub = self.node.create_subscription(JointState, topics.JOINT_STATES,
                                                         self._on_state, CONTROL_QOS)
         self.publishers: dict[str, object] = {}
-        self.replies: list = []
+        #: (accepted, reason) of every parameter or service request answered
+        self.replies: list[tuple[bool, str]] = []
         self._client = None
         self._client_ready = False
 
@@ -122,9 +146,9 @@ class Intruder:
             self.executor.spin_once(timeout_sec=0.02)
         return True
 
-    def publisher(self, msg_type, topic: str):
+    def publisher(self, msg_type, topic: str, qos=None):
         if topic not in self.publishers:
-            self.publishers[topic] = self.node.create_publisher(msg_type, topic, self.qos)
+            self.publishers[topic] = self.node.create_publisher(msg_type, topic, qos or self.qos)
             self.spin_until(lambda: False, 0.3)         # let discovery match it
         return self.publishers[topic]
 
@@ -147,7 +171,7 @@ class Intruder:
         if wait:
             self.spin_until(future.done, 10.0)
             if future.done():
-                self.replies.extend(future.result().results)
+                self.replies.extend((r.successful, r.reason) for r in future.result().results)
         return future
 
     def refused_flood(self, count: int = 200, seconds: float = 1.0) -> None:
@@ -157,7 +181,8 @@ class Intruder:
             futures.append(self.set_parameters({"Q_c": [float("nan"), 1.0]}, wait=False))
             self.spin_until(lambda: False, seconds / count)
         self.spin_until(lambda: all(f.done() for f in futures), 10.0)
-        self.replies.extend(f.result().results[0] for f in futures if f.done())
+        self.replies.extend((f.result().results[0].successful, f.result().results[0].reason)
+                            for f in futures if f.done())
 
     def joint_state(self, names: list[str], position: list[float], velocity: list[float]):
         from sensor_msgs.msg import JointState
@@ -206,6 +231,64 @@ class Intruder:
             msg.wrench.force.x = msg.wrench.force.y = msg.wrench.force.z = force
             pub.publish(msg)
             time.sleep(0.01)
+
+    def target_pose(self, position: list[float], quaternion_wxyz: list[float],
+                    seconds: float = 2.0, rate_hz: float = 10.0) -> None:
+        """A pose target on the controller's ~/target_pose (base frame) at ``rate_hz``."""
+        from geometry_msgs.msg import PoseStamped
+
+        from cr_control.nodes.qos import TARGET_QOS
+
+        pub = self.publisher(PoseStamped, f"{self.controller}/{self.topics.TARGET_POSE_SUFFIX}",
+                             TARGET_QOS)
+        for _ in range(round(seconds * rate_hz)):
+            msg = PoseStamped()
+            msg.header.stamp = self.node.get_clock().now().to_msg()
+            p, o = msg.pose.position, msg.pose.orientation
+            p.x, p.y, p.z = position
+            o.w, o.x, o.y, o.z = quaternion_wxyz
+            pub.publish(msg)
+            time.sleep(1.0 / rate_hz)
+
+    def target_wrench(self, steps: list[tuple[float, float]], rate_hz: float = 10.0) -> None:
+        """Wrench targets on ~/target_wrench: for each (force along the base's z (N), for how
+        many seconds), that force at ``rate_hz``."""
+        from geometry_msgs.msg import WrenchStamped
+
+        from cr_control.nodes.qos import TARGET_QOS
+
+        pub = self.publisher(WrenchStamped, f"{self.controller}/{self.topics.TARGET_WRENCH_SUFFIX}",
+                             TARGET_QOS)
+        for force, seconds in steps:
+            for _ in range(round(seconds * rate_hz)):
+                msg = WrenchStamped()
+                msg.header.stamp = self.node.get_clock().now().to_msg()
+                msg.wrench.force.z = force
+                pub.publish(msg)
+                time.sleep(1.0 / rate_hz)
+
+    def zero_ft(self, calls: int = 15, every_s: float = 0.2) -> None:
+        """``calls`` requests to zero the wrist sensor (~/zero_ft) while the tool presses,
+        ``every_s`` apart; the answers go to replies."""
+        from std_srvs.srv import Trigger
+
+        client = self.node.create_client(Trigger, f"{self.controller}/zero_ft")
+        if not self.spin_until(client.service_is_ready, 10.0):
+            raise RuntimeError(f"{self.controller}/zero_ft never appeared")
+        for _ in range(calls):
+            future = client.call_async(Trigger.Request())
+            self.spin_until(future.done, 5.0)
+            if future.done():
+                self.replies.append((future.result().success, future.result().message))
+            self.spin_until(lambda: False, every_s)
+
+    def silent_publishers(self) -> None:
+        """A /joint_states publisher that never publishes and a /joint_commands publisher,
+        both on the domain before the session's nodes start."""
+        from sensor_msgs.msg import JointState
+
+        self.publisher(JointState, self.topics.JOINT_STATES)
+        self.publisher(JointState, self.topics.JOINT_COMMANDS)
 
     def joiners(self, count: int = 3, every_s: float = 0.5, stay_s: float = 0.5,
                 topic: str = "/joint_states") -> None:
@@ -267,8 +350,40 @@ CASES = [
     # (cr_control/nodes/discovery_settle.py; the nodes' 0.25 s announcements).
     Case("staying_node", "a process joins the domain and stays (reads /plant/timing)",
          lambda x: x.joiners(count=1, stay_s=3.0, topic="/plant/timing"), miss_margin=5.0),
+    # -- a robot with a wrist sensor: targets out of reach, zeroing, wrench targets, intruder
+    Case("robot_baseline", "nothing, on the robot (the run the robot cases are judged against)",
+         lambda x: None, suite="robot"),
+    Case("target_10_m", "a pose target 10 m up, 2 s at 10 Hz",
+         lambda x: x.target_pose([0.0, 0.0, 10.0], [0.0, 1.0, 0.0, 0.0]), suite="robot",
+         speed_judged=False),
+    Case("target_1e300_m", "a pose target at 1e300 m, 2 s at 10 Hz",
+         lambda x: x.target_pose([1e300, -1e300, 1e300], [0.0, 1.0, 0.0, 0.0]), suite="robot",
+         speed_judged=False),
+    Case("target_quaternion_1e200", "a pose target whose quaternion has norm 1e200",
+         lambda x: x.target_pose([0.3, 0.0, 0.5], [0.0, 1e200, 0.0, 0.0]), suite="robot",
+         speed_judged=False),
+    Case("target_nan", "a pose target of NaN", lambda x: x.target_pose(
+        [math.nan, 0.0, 0.5], [0.0, 1.0, 0.0, 0.0]), suite="robot", force_judged=True),
+    Case("wrench_target_1e6", "a wrench target of 1e6 N into the table, 2 s",
+         lambda x: x.target_wrench([(1e6, 2.0)]), suite="robot"),
+    Case("wrench_pull_away", "a wrench target of -10 N (pull away) 2 s, then +10 N 2 s",
+         lambda x: x.target_wrench([(-10.0, 2.0), (10.0, 2.0)]), suite="robot",
+         force_judged=True, extra_s=2.0),
+    Case("zeroing_walk", "~/zero_ft 15 times, every 0.2 s, while pressing",
+         lambda x: x.zero_ft(), suite="robot", force_judged=True),
+    Case("silent_intruder", "a node with a silent /joint_states and a /joint_commands "
+         "publisher before the session starts, then 1e308 N m commands for 1 s",
+         lambda x: x.commands(lambda i: 1e308, 1000), suite="robot",
+         prepare=lambda x: x.silent_publishers()),
 ]
 CASE_NAMES = [case.name for case in CASES]
+#: The session suites: their baseline case and robot profile (None: --robot, by default the
+#: scheme's thesis plant). The "inputs" suite (no sessions) is cr_control.tools.fuzz_inputs.
+SUITES = {"session": ("baseline", None), "robot": ("robot_baseline", "panda_ft")}
+#: A force-judged case's largest true contact force may exceed the baseline's by this factor
+#: plus FORCE_FLOOR (N).
+FORCE_MARGIN = 1.2
+FORCE_FLOOR = 2.0
 
 
 #: Counters that show an input refused: the plant's (/plant/timing), the controller's status.
@@ -295,6 +410,9 @@ class Row:
     seen: str = ""
     #: The median window's share of fresh commands (the reference of the cases' "resumed").
     fresh_median: float = math.nan
+    #: The largest true contact force after the first second (N; /plant/contact_wrench,
+    #: NaN if the plant publishes none).
+    max_force: float = math.nan
 
 
 def commanding_at_end(fresh: np.ndarray, stopped: np.ndarray, reference: float,
@@ -344,8 +462,14 @@ def judge(recording: Path | None, case: str, alive: bool, note: str,
     counted += [f"held cycles {held}"] if held else []
     sources = int(np.nanmax(timing.get("state_publishers", np.zeros(1))))
     counted += [f"state_publishers {sources}"] if sources > 1 else []   # the rest unfollowed
+    force = math.nan
+    contact = session.contact_wrench
+    if contact is not None and states is not None and len(contact.time) and len(states.time):
+        late = contact.time >= states.time[0] + SETTLE_S
+        force = float(np.nanmax(np.linalg.norm(contact.force[late], axis=1))) if late.any() \
+            else math.nan
     return Row(case, alive, finite, speed, safe_stop, resumed, float(np.nanmax(miss)), note,
-               seen=", ".join(counted), fresh_median=median)
+               seen=", ".join(counted), fresh_median=median, max_force=force)
 
 
 def verdict(row: Row, case: Case, baseline: Row | None) -> str:
@@ -354,14 +478,22 @@ def verdict(row: Row, case: Case, baseline: Row | None) -> str:
         (not row.alive, "a process died"), (not row.finite, "non-finite state"),
         (row.safe_stop, "safe stop"), (not row.resumed, "controller not commanding at the end"))
         if bad]
-    if baseline is not None and case.name != "baseline":
+    if baseline is not None and case.name != baseline.case:
         allowed = baseline.max_speed * SPEED_MARGIN + SPEED_FLOOR
-        if not row.max_speed <= allowed:
+        if case.speed_judged and not row.max_speed <= allowed:
             reasons.append(f"max |q'| {row.max_speed:.3g} > {allowed:.3g} (baseline's)")
+        allowed_force = baseline.max_force * FORCE_MARGIN + FORCE_FLOOR
+        if case.force_judged and not row.max_force <= allowed_force:
+            reasons.append(f"max |f| {row.max_force:.3g} N > {allowed_force:.3g} N (baseline's)")
         if case.miss_margin is not None and not row.miss_ms <= baseline.miss_ms + case.miss_margin:
             reasons.append(f"missed {row.miss_ms:.0f} ms > baseline {baseline.miss_ms:.0f} + "
                            f"{case.miss_margin:.0f}")
     return f"FAILED: {reasons[0]}" if reasons else "survived"
+
+
+def suite_robot(suite: str, args: argparse.Namespace) -> str | None:
+    """The robot profile a suite's sessions run on."""
+    return args.robot or SUITES[suite][1]
 
 
 def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
@@ -370,12 +502,15 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
     ``reference``: the baseline's median fresh share."""
     from cr_control.tools.session import Session, SessionConfig, SessionError
 
-    cfg = SessionConfig(scheme=args.scheme, duration=args.duration + case.extra_s, robot=args.robot,
-                        out=out, name=f"fuzz-{datetime.now():%Y%m%d-%H%M%S}-{case.name}")
+    cfg = SessionConfig(scheme=args.scheme, duration=args.duration + case.extra_s,
+                        robot=suite_robot(case.suite, args), out=out,
+                        name=f"fuzz-{datetime.now():%Y%m%d-%H%M%S}-{case.name}")
     session = Session(cfg, progress=lambda *_: None)
     domain = claim_free_domain()
     intruder = Intruder(domain.domain_id, args.scheme)
     failure: list[str] = []
+    if case.prepare is not None:
+        case.prepare(intruder)
 
     def run() -> None:
         try:
@@ -403,51 +538,96 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
         intruder.close()
         domain.release()
     row = judge(session.mcap, case.name, not failure, failure[0] if failure else note, reference)
-    answers = [reply.reason or "accepted" if not reply.successful else "accepted"
-               for reply in intruder.replies]
-    if answers:
-        first = answers[0] if len(answers[0]) <= 70 else answers[0][:67] + "..."
-        row.seen = "; ".join(filter(None, [f"{len(answers)} answer(s): {first}", row.seen]))
+    if intruder.replies:
+        accepted = sum(ok for ok, _ in intruder.replies)
+        refused = [reason for ok, reason in intruder.replies if not ok]
+        first = (refused or ["accepted"])[0]
+        first = first if len(first) <= 70 else first[:67] + "..."
+        row.seen = "; ".join(filter(None, [f"{len(intruder.replies)} answer(s), {accepted} "
+                                           f"accepted: {first}", row.seen]))
     return row
 
 
 def format_rows(rows: list[Row], cases: dict[str, Case]) -> str:
-    head = f"{'case':27} {'alive':5} {'finite':6} {'max|q_dot|':>10} {'safe stop':9} " \
-           f"{'resumed':7} {'miss ms':>7}  verdict"
+    head = f"{'case':27} {'alive':5} {'finite':6} {'max|q_dot|':>10} {'max|f| N':>8} " \
+           f"{'safe stop':9} {'resumed':7} {'miss ms':>7}  verdict"
     lines = [head, "-" * len(head)]
     for r in rows:
         yes = {True: "yes", False: "no"}
         lines.append(f"{r.case:27} {yes[r.alive]:5} {yes[r.finite]:6} {r.max_speed:10.3f} "
-                     f"{yes[r.safe_stop]:9} {yes[r.resumed]:7} {r.miss_ms:7.0f}  {r.verdict}"
-                     + (f"  ({r.note})" if r.note else ""))
+                     f"{r.max_force:8.1f} {yes[r.safe_stop]:9} {yes[r.resumed]:7} "
+                     f"{r.miss_ms:7.0f}  {r.verdict}" + (f"  ({r.note})" if r.note else ""))
     lines.append("")
     lines += [f"{r.case}: {cases[r.case].what}" + (f"; seen: {r.seen}" if r.seen else "")
               for r in rows]
     return "\n".join(lines)
 
 
+ALL_SUITES = ("inputs", *SUITES)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from cr_control.schemes.registry import SCHEMES
+    from cr_control.tools.fuzz_inputs import INPUT_CASE_NAMES
 
     parser = argparse.ArgumentParser(prog="cr_fuzz", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--cases", default=",".join(CASE_NAMES),
-                        help=f"comma-separated, of: {', '.join(CASE_NAMES)} (baseline always runs)")
+    parser.add_argument("--suite", default=",".join(ALL_SUITES),
+                        help=f"comma-separated, of: {', '.join(ALL_SUITES)} (default: all)")
+    parser.add_argument("--cases", default=None,
+                        help=f"comma-separated, of any suite (default: every case of --suite): "
+                             f"{', '.join(INPUT_CASE_NAMES + CASE_NAMES)}; a session suite's "
+                             "baseline always runs")
     parser.add_argument("--scheme", default="adaptive_impedance", choices=sorted(SCHEMES))
-    parser.add_argument("--robot", default=None, help="a robot profile (panda, ur5)")
+    parser.add_argument("--robot", default=None,
+                        help="a robot profile for every session (default: the session suite on "
+                             "the scheme's thesis plant, the robot suite on panda_ft)")
     parser.add_argument("--duration", type=float, default=8.0, help="seconds per session")
     parser.add_argument("--out", type=Path, default=None,
                         help="keep the sessions here (default: a temporary folder)")
     return parser
 
 
+def _names(text: str) -> list[str]:
+    return [name.strip() for name in text.split(",") if name.strip()]
+
+
+def run_suite(suite: str, wanted: list[str], args: argparse.Namespace, out: Path) -> bool:
+    """The session suite's baseline and its ``wanted`` cases, then its table; all survived?"""
+    cases = {case.name: case for case in CASES}
+    baseline = SUITES[suite][0]
+    order = [baseline] + [c.name for c in CASES if c.suite == suite and c.name in wanted
+                          and c.name != baseline]
+    rows: list[Row] = []
+    for i, name in enumerate(order, 1):
+        print(f"[{suite} {i}/{len(order)}] {name}: {cases[name].what} ...", flush=True)
+        row = run_case(cases[name], args, out, reference=rows[0].fresh_median if rows else None)
+        row.verdict = verdict(row, cases[name], rows[0] if rows else None)
+        print(f"    {row.verdict}", flush=True)
+        rows.append(row)
+    print()
+    print(format_rows(rows, cases))
+    print()
+    return all(r.verdict == "survived" for r in rows)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
+    from cr_control.tools import fuzz_inputs
+
     args = build_parser().parse_args(argv)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")   # never off this machine
-    wanted = [name.strip() for name in args.cases.split(",") if name.strip()]
-    unknown = sorted(set(wanted) - set(CASE_NAMES))
+    suites = _names(args.suite)
+    every = fuzz_inputs.INPUT_CASE_NAMES + CASE_NAMES
+    unknown = sorted(set(suites) - set(ALL_SUITES))
     if unknown:
-        print(f"cr_fuzz: unknown case(s) {', '.join(unknown)}; known: {', '.join(CASE_NAMES)}",
+        print(f"cr_fuzz: unknown suite(s) {', '.join(unknown)}; known: {', '.join(ALL_SUITES)}",
+              file=sys.stderr)
+        return 2
+    wanted = _names(args.cases) if args.cases is not None else [
+        name for name in every if _suite_of(name) in suites]
+    unknown = sorted(set(wanted) - set(every))
+    if unknown:
+        print(f"cr_fuzz: unknown case(s) {', '.join(unknown)}; known: {', '.join(every)}",
               file=sys.stderr)
         return 2
     if not 2.0 * SETTLE_S + 2.0 < args.duration <= 600.0:
@@ -457,21 +637,24 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cr_fuzz: unknown robot {args.robot!r}; known: {', '.join(sorted(ROBOTS))}",
               file=sys.stderr)
         return 2
-    cases = {case.name: case for case in CASES}
-    order = ["baseline"] + [name for name in CASE_NAMES if name in wanted and name != "baseline"]
-    with tempfile.TemporaryDirectory(prefix="cr_fuzz-") as tmp:
-        out = args.out or Path(tmp)
-        rows: list[Row] = []
-        for i, name in enumerate(order, 1):
-            print(f"[{i}/{len(order)}] {name}: {cases[name].what} ...", flush=True)
-            row = run_case(cases[name], args, out,
-                           reference=rows[0].fresh_median if rows else None)
-            row.verdict = verdict(row, cases[name], rows[0] if rows else None)
-            print(f"    {row.verdict}", flush=True)
-            rows.append(row)
+    ok = True
+    inputs = [name for name in fuzz_inputs.INPUT_CASE_NAMES if name in wanted]
+    if inputs:
+        rows = fuzz_inputs.run_inputs(inputs, progress=lambda line: print(line, flush=True))
         print()
-        print(format_rows(rows, cases))
-    return 0 if all(r.verdict == "survived" for r in rows) else 1
+        print(fuzz_inputs.format_input_rows(rows))
+        print()
+        ok = all(r.verdict == "refused" for r in rows)
+    with tempfile.TemporaryDirectory(prefix="cr_fuzz-") as tmp:
+        for suite in SUITES:
+            if any(_suite_of(name) == suite for name in wanted):
+                ok = run_suite(suite, wanted, args, args.out or Path(tmp)) and ok
+    return 0 if ok else 1
+
+
+def _suite_of(name: str) -> str:
+    """The suite a case of any suite belongs to."""
+    return next((case.suite for case in CASES if case.name == name), "inputs")
 
 
 if __name__ == "__main__":

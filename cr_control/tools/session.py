@@ -98,14 +98,20 @@ WILDCARD_NODES = ("**", "/**")
 
 
 def _load_params_file(path: Path) -> dict[str, dict[str, Any]]:
-    """A ROS params file as {node: {parameter: value}}; SessionError saying what is wrong."""
+    """A ROS params file as {node: {parameter: value}}; SessionError saying what is wrong.
+
+    Read as every YAML input is (:func:`cr_control.core.ros_yaml.read_file`): a regular file
+    of at most 1 MiB of UTF-8 text, no aliases, nesting at most 64 deep; a named pipe or
+    ``/dev/zero`` is refused without reading it."""
     try:
-        data = ros_yaml.load(path.read_text())
+        data = ros_yaml.load(ros_yaml.read_file(path))
     except OSError as exc:
         raise SessionError(f"params file {path}: {exc.strerror or exc}") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        reason = ros_yaml.describe_error(exc) if isinstance(exc, yaml.YAMLError) else "not text"
-        raise SessionError(f"params file {path}: not valid YAML: {reason}") from None
+    except ValueError as exc:       # not a regular file, too large, not UTF-8
+        raise SessionError(f"params file {path}: {exc}") from None
+    except yaml.YAMLError as exc:
+        raise SessionError(f"params file {path}: not valid YAML: "
+                           f"{ros_yaml.describe_error(exc)}") from None
     expected = f"expected '{ros_yaml.PARAMS_FILE_FORM}'"
     if ros_yaml.is_empty_params(data):
         raise SessionError(f"params file {path}: empty, no node's parameters ({expected})")
@@ -243,6 +249,35 @@ def _check_parameters(params: dict[str, dict[str, Any]]) -> None:
             ok, reason, _ = validate(spec, values.get(spec.name, spec.default))
             if not ok:
                 raise SessionError(f"{node}: {reason}")
+    _check_robot_descriptions(params)
+
+
+#: The parameters that name a node's robot description and its chain.
+ROBOT_KEYS = ("robot_description", "urdf_file", "base_link", "tip_link")
+
+
+def _check_robot_descriptions(params: dict[str, dict[str, Any]]) -> None:
+    """SessionError for a robot description a node would refuse (too large or deep, an
+    entity, non-physical masses, inertias or limits: :func:`cr_control.models.urdf.load_chain`),
+    before any process starts: the session refuses in one line, never with a node's crash."""
+    from cr_control.models.urdf import RobotModelError, load_chain
+
+    checked: dict[tuple, str | None] = {}
+    for node, values in params.items():
+        specs = {spec.name: spec.default for spec in node_specs(node, values) or ()}
+        if not all(key in specs for key in ROBOT_KEYS):
+            continue
+        key = tuple(str(values.get(k, specs[k])) for k in ROBOT_KEYS)
+        if not (key[0] or key[1]):
+            continue
+        if key not in checked:
+            try:
+                load_chain(*key)
+                checked[key] = None
+            except RobotModelError as exc:
+                checked[key] = str(exc)
+        if checked[key] is not None:
+            raise SessionError(f"{node}: {checked[key]}")
 
 
 def _check_switch(cfg: SessionConfig) -> None:
