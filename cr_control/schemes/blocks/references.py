@@ -55,11 +55,12 @@ The filter and the admittance are advanced by one classical RK4 step over each c
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
-from cr_control.core.packing import Layout
+from cr_control.core.packing import Layout, take, views_layout
 from cr_control.core.parameters import Bound, Param
 from cr_control.core.so3 import (
     quaternion_conjugate,
@@ -127,41 +128,101 @@ def reference_parameters(m: int, offset: list[float], amplitude: list[float],
 #: (3) and quaternion [w, x, y, z]; a wrench counter (0 = none yet) and its force (3).
 TARGETS = Layout(pose_seq=1, position=3, quaternion=4, wrench_seq=1, force=3)
 _T_POSE_SEQ, _T_POS, _T_QUAT, _T_WRENCH_SEQ, _T_FORCE = (TARGETS.offset(n) for n in TARGETS.shapes)
+#: An empty vector: the blocks' views of it are empty, where they end is their size.
+_NOTHING = np.zeros(0)
 
 
-def reference_gains(m: int, n: int) -> Layout:
-    """Packed reference parameters for m axes and n joints (names = parameter names; the
-    posture comes here too: it is held like the start pose)."""
-    return Layout(reference_offset=m, reference_amplitude=m, reference_phase=m,
-                  reference_frequency=1, reference_relative=1, desired_force=m,
-                  force_ramp_time=1, target_filter_frequency=1, force_admittance_mass=1,
-                  force_admittance_damping=1, force_admittance_limit=1, posture=n, posture_given=1,
-                  **guard.guard_gains(m).shapes, target_max_speed=1, target_force_rate=1)
+#: The desired motion's packed gains, block by block (names = parameter names; the posture
+#: comes here too: it is held like the start pose; ``guard``: :func:`contact_guard.guard_gains`).
+ReferenceGains = namedtuple("ReferenceGains", [
+    "reference_offset", "reference_amplitude", "reference_phase", "reference_frequency",
+    "reference_relative", "desired_force", "force_ramp_time", "target_filter_frequency",
+    "force_admittance_mass", "force_admittance_damping", "force_admittance_limit", "posture",
+    "posture_given", "guard", "target_max_speed", "target_force_rate"])
 
-
-def reference_state(m: int, n: int) -> Layout:
-    """The desired motion's internal state for m axes and n joints."""
-    return Layout(started=1, r_start=m, quat_start=4, q_start=n, pose_seq=1, r_f=m, v_f=m,
-                  quat_f=4, w_f=3, delta=2, guard=guard.guard_state(m).size, n_f=m,
-                  f_target=m, f_target_set=1)
+#: The desired motion's internal state, block by block: started (0/1), the start position,
+#: orientation and joint positions, the last target pose's counter, the target filter
+#: (r_f, v_f, quat_f, w_f), the admittance's [delta, delta'], the contact guard's state
+#: (:func:`contact_guard.guard_state`), the direction n_f the admittance last ran along, the
+#: force given to the law (f_target, slewed) and whether it is set.
+ReferenceState = namedtuple("ReferenceState", [
+    "started", "r_start", "quat_start", "q_start", "pose_seq", "r_f", "v_f", "quat_f", "w_f",
+    "delta", "guard", "n_f", "f_target", "f_target_set"])
 
 
 @njit(cache=True, error_model="numpy")
-def reference_state_size(m, n):
-    """reference_state(m, n).size, for kernels (the scheme's own state follows it)."""
-    return 5 * m + n + 16 + guard.guard_sizes(m)[1]
+def reference_gains_views(gains, m, n):
+    """(:data:`ReferenceGains` views of ``gains`` for m axes and n joints, where they end)."""
+    offset, k = take(gains, 0, m)
+    amplitude, k = take(gains, k, m)
+    phase, k = take(gains, k, m)
+    frequency, k = take(gains, k, 1)
+    relative, k = take(gains, k, 1)
+    desired_force, k = take(gains, k, m)
+    ramp_time, k = take(gains, k, 1)
+    filter_frequency, k = take(gains, k, 1)
+    admittance_mass, k = take(gains, k, 1)
+    admittance_damping, k = take(gains, k, 1)
+    admittance_limit, k = take(gains, k, 1)
+    posture, k = take(gains, k, n)
+    posture_given, k = take(gains, k, 1)
+    guard_gains, k = take(gains, k, guard.guard_sizes(m)[0])
+    max_speed, k = take(gains, k, 1)
+    force_rate, k = take(gains, k, 1)
+    return ReferenceGains(offset, amplitude, phase, frequency, relative, desired_force,
+                          ramp_time, filter_frequency, admittance_mass, admittance_damping,
+                          admittance_limit, posture, posture_given, guard_gains, max_speed,
+                          force_rate), k
+
+
+@njit(cache=True, error_model="numpy")
+def reference_state_views(state, m, n):
+    """(:data:`ReferenceState` views of ``state`` for m axes and n joints, where they end:
+    the scheme's own state follows)."""
+    started, k = take(state, 0, 1)
+    r_start, k = take(state, k, m)
+    quat_start, k = take(state, k, 4)
+    q_start, k = take(state, k, n)
+    pose_seq, k = take(state, k, 1)
+    r_f, k = take(state, k, m)
+    v_f, k = take(state, k, m)
+    quat_f, k = take(state, k, 4)
+    w_f, k = take(state, k, 3)
+    delta, k = take(state, k, 2)
+    guard_state, k = take(state, k, guard.guard_sizes(m)[1])
+    n_f, k = take(state, k, m)
+    f_target, k = take(state, k, m)
+    f_target_set, k = take(state, k, 1)
+    return ReferenceState(started, r_start, quat_start, q_start, pose_seq, r_f, v_f, quat_f,
+                          w_f, delta, guard_state, n_f, f_target, f_target_set), k
+
+
+def reference_gains(m: int, n: int) -> Layout:
+    """Packed reference parameters for m axes and n joints (:data:`ReferenceGains`)."""
+    return views_layout(reference_gains_views, m, n)
+
+
+def reference_state(m: int, n: int) -> Layout:
+    """The desired motion's internal state for m axes and n joints (:data:`ReferenceState`)."""
+    return views_layout(reference_state_views, m, n)
 
 
 @njit(cache=True, error_model="numpy")
 def reference_gains_size(m, n):
     """reference_gains(m, n).size, for kernels."""
-    return 4 * m + 10 + n + guard.guard_sizes(m)[0]
+    return reference_gains_views(_NOTHING, m, n)[1]
 
 
 @njit(cache=True, error_model="numpy")
 def guard_state_of(state, m, n):
     """The guard's block (:mod:`contact_guard`) of a packed reference state (a view)."""
-    return state[3 * m + n + 15:3 * m + n + 15 + guard.guard_sizes(m)[1]]
+    return reference_state_views(state, m, n)[0].guard
+
+
+@njit(cache=True, error_model="numpy")
+def guard_gains_of(gains, m, n):
+    """The guard's block (:mod:`contact_guard`) of packed reference gains (a view)."""
+    return reference_gains_views(gains, m, n)[0].guard
 
 
 @njit(cache=True, error_model="numpy")
@@ -215,30 +276,31 @@ def _admittance_step(delta, delta_dot, push, m_a, d_a, limit, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def _slewed_target(slot, f_target, rate, dt):
-    """The target force the law is given: the first one as it came, each later one
-    approached at ``rate`` N/s at most (Euclidean); ``slot`` = [the force given, set flag]."""
-    m = f_target.shape[0]
-    if slot[m] == 0.0:
-        slot[:m] = f_target
-        slot[m] = 1.0
+def _slewed_target(given, given_set, f_target, rate, dt):
+    """The target force the law is given (``given``, in place): the first one as it came
+    (``given_set[0]`` 0 until then), each later one approached at ``rate`` N/s at most
+    (Euclidean)."""
+    if given_set[0] == 0.0:
+        given[:] = f_target
+        given_set[0] = 1.0
     elif dt > 0.0:
-        step = f_target - slot[:m]
+        step = f_target - given
         size = math.sqrt(np.sum(step * step))
         if size > rate * dt:
             step *= rate * dt / size
-        slot[:m] += step
-    return slot[:m].copy()
+        given += step
+    return given.copy()
 
 
 @njit(cache=True, error_model="numpy")
-def _turn_admittance(state, s_delta, n_last, n_f):
+def _turn_admittance(delta, n_last, n_f):
     """A desired force that turned (n_f is not the direction the admittance last ran
     along, ``n_last``; zeros before the first time) keeps the shift it made, delta n_last,
     as far as it lies along the new n_f: delta <- delta (n_last . n_f), delta' likewise (a
     sign flip keeps r_d where it is instead of moving it by 2 delta: after a -10 N "pull"
     target held at the limit, +10 N moved r_d 10 cm, from 5 cm above the table to 5 cm into
-    it, and the NN scheme hit the table with 28 N). ``n_last`` becomes n_f."""
+    it, and the NN scheme hit the table with 28 N). ``delta`` = [delta, delta'], in place;
+    ``n_last`` becomes n_f."""
     m = n_f.shape[0]
     turned, started, c = False, False, 0.0
     for i in range(m):
@@ -247,8 +309,8 @@ def _turn_admittance(state, s_delta, n_last, n_f):
         c += n_last[i] * n_f[i]
     if turned:
         if started:
-            state[s_delta] *= c
-            state[s_delta + 1] *= c
+            delta[0] *= c
+            delta[1] *= c
         n_last[:] = n_f
 
 
@@ -286,110 +348,100 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
     with a desired force of their own.
 
     ``rows`` are the position rows of the task, ``gains`` / ``state`` the packed
-    reference_gains / reference_state blocks, ``targets`` the TARGETS vector; r, R, q are the
-    measured tip position (task rows), tip rotation and joint positions, ``force`` the
-    measured force on the task rows (for the admittance, the approach and the monitor).
-    The guarded approach, the target timeouts and the contact-stability monitor are
-    :mod:`cr_control.schemes.blocks.contact_guard`'s."""
+    :data:`ReferenceGains` / :data:`ReferenceState` blocks, ``targets`` the TARGETS vector;
+    r, R, q are the measured tip position (task rows), tip rotation and joint positions,
+    ``force`` the measured force on the task rows (for the admittance, the approach and the
+    monitor). The guarded approach, the target timeouts and the contact-stability monitor
+    are :mod:`cr_control.schemes.blocks.contact_guard`'s."""
     m, n = r.shape[0], q.shape[0]
-    o_off, o_amp, o_ph = 0, m, 2 * m
-    o_w, o_rel, o_fd, o_ramp = 3 * m, 3 * m + 1, 3 * m + 2, 4 * m + 2
-    o_wf, o_ma, o_da, o_lim = 4 * m + 3, 4 * m + 4, 4 * m + 5, 4 * m + 6
-    o_post, o_post_given = 4 * m + 7, 4 * m + 7 + n
-    o_vmax, o_rate = gains.shape[0] - 2, gains.shape[0] - 1     # the block's last two
-    s_nf = 3 * m + n + 15 + guard.guard_sizes(m)[1]             # n_f, f_target: after the guard
-    s_r0, s_q0, s_qs = 1, 1 + m, 5 + m
-    s_seq, s_rf, s_vf = 5 + m + n, 6 + m + n, 6 + 2 * m + n
-    s_qf, s_wf, s_delta = 6 + 3 * m + n, 10 + 3 * m + n, 13 + 3 * m + n
-    g_guard = gains[4 * m + 8 + n:]
-    s_guard = guard_state_of(state, m, n)
-    if state[0] == 0.0:
-        state[0] = 1.0
-        state[s_r0:s_r0 + m] = r
-        state[s_q0:s_q0 + 4] = quaternion_from_matrix(R)
-        state[s_qs:s_qs + n] = q
-        state[s_qf:s_qf + 4] = state[s_q0:s_q0 + 4]
-        guard.guard_start(g_guard, s_guard, m)
+    g = reference_gains_views(gains, m, n)[0]
+    s = reference_state_views(state, m, n)[0]
+    if s.started[0] == 0.0:
+        s.started[0] = 1.0
+        s.r_start[:] = r
+        s.quat_start[:] = quaternion_from_matrix(R)
+        s.q_start[:] = q
+        s.quat_f[:] = s.quat_start
+        guard.guard_start(g.guard, s.guard, m)
     has_wrench = targets[_T_WRENCH_SEQ] != 0.0
     f_target = _rows_of(targets[_T_FORCE:_T_FORCE + 3], rows, m)
-    phase = guard.phase_of(s_guard)
+    phase = guard.phase_of(s.guard)
     if phase == guard.APPROACHING or phase == guard.NO_CONTACT:
-        touched, r_a, v_a, a_a = guard.approach(g_guard, s_guard, t, dt, r,
-                                                state[s_r0:s_r0 + m], force, f_target, has_wrench)
+        touched, r_a, v_a, a_a = guard.approach(g.guard, s.guard, t, dt, r, s.r_start, force,
+                                                f_target, has_wrench)
         if touched:                  # the scheme starts now, here: its path from this point
-            state[s_r0:s_r0 + m] = r
+            s.r_start[:] = r
         else:
-            guard.monitor(g_guard, s_guard, force, np.zeros(m), dt, False)
-            return (r_a, v_a, a_a, np.zeros(m), state[s_q0:s_q0 + 4].copy(), np.zeros(3),
-                    (gains[o_post:o_post + n] if gains[o_post_given] > 0.0
-                     else state[s_qs:s_qs + n]).copy(), 0.0)
-    t_path = guard.trajectory_time(s_guard, t)
-    offset = gains[o_off:o_off + m].copy()
-    if gains[o_rel] > 0.0:
-        offset += state[s_r0:s_r0 + m]
-    r_d, v_d, a_d = cosine_reference(offset, gains[o_amp:o_amp + m], gains[o_ph:o_ph + m],
-                                     gains[o_w], t_path)
-    quat_d, w_d = state[s_qf:s_qf + 4].copy(), state[s_wf:s_wf + 3].copy()
-    w_f = gains[o_wf]
-    hold_r, hold_q = guard.hold_views(s_guard, m)
-    if targets[_T_POSE_SEQ] != state[s_seq]:
-        if state[s_seq] == 0.0:                 # first target: start from the trajectory
-            state[s_rf:s_rf + m], state[s_vf:s_vf + m] = r_d, v_d
-        state[s_seq] = targets[_T_POSE_SEQ]
-        guard.saw_target(s_guard, m, True, t)
-        guard.stale_pose(g_guard, s_guard, t, m, state[s_seq])
+            guard.monitor(g.guard, s.guard, force, np.zeros(m), dt, False)
+            return (r_a, v_a, a_a, np.zeros(m), s.quat_start.copy(), np.zeros(3),
+                    (g.posture if g.posture_given[0] > 0.0 else s.q_start).copy(), 0.0)
+    t_path = guard.trajectory_time(s.guard, t)
+    offset = g.reference_offset.copy()
+    if g.reference_relative[0] > 0.0:
+        offset += s.r_start
+    r_d, v_d, a_d = cosine_reference(offset, g.reference_amplitude, g.reference_phase,
+                                     g.reference_frequency[0], t_path)
+    quat_d, w_d = s.quat_f.copy(), s.w_f.copy()
+    w_f = g.target_filter_frequency[0]
+    v_max = g.target_max_speed[0]
+    hold_r, hold_q = guard.hold_views(s.guard, m)
+    if targets[_T_POSE_SEQ] != s.pose_seq[0]:
+        if s.pose_seq[0] == 0.0:                # first target: start from the trajectory
+            s.r_f[:], s.v_f[:] = r_d, v_d
+        s.pose_seq[0] = targets[_T_POSE_SEQ]
+        guard.saw_target(s.guard, m, True, t)
+        guard.stale_pose(g.guard, s.guard, t, m, s.pose_seq[0])
     else:
-        stale, just_now = guard.stale_pose(g_guard, s_guard, t, m, state[s_seq])
+        stale, just_now = guard.stale_pose(g.guard, s.guard, t, m, s.pose_seq[0])
         if just_now:                            # hold where the reference is
-            hold_r[:] = state[s_rf:s_rf + m]
-            hold_q[:] = state[s_qf:s_qf + 4]
-        if state[s_seq] != 0.0 and dt > 0.0:
+            hold_r[:] = s.r_f
+            hold_q[:] = s.quat_f
+        if s.pose_seq[0] != 0.0 and dt > 0.0:
             if stale:
                 target, target_q = hold_r.copy(), hold_q.copy()
             else:
                 target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
                 target_q = targets[_T_QUAT:_T_QUAT + 4].copy()
-            target = _leash(target, state[s_rf:s_rf + m], gains[o_vmax], w_f)
-            x, xd = _filter_step(state[s_rf:s_rf + m], state[s_vf:s_vf + m], target, w_f, dt)
-            state[s_rf:s_rf + m], state[s_vf:s_vf + m] = x, xd
-            w_rot = state[s_wf:s_wf + 3]
-            err = rotation_vector(quaternion_multiply(target_q,
-                                                      quaternion_conjugate(state[s_qf:s_qf + 4])))
+            target = _leash(target, s.r_f, v_max, w_f)
+            x, xd = _filter_step(s.r_f, s.v_f, target, w_f, dt)
+            s.r_f[:], s.v_f[:] = x, xd
+            w_rot = s.w_f
+            err = rotation_vector(quaternion_multiply(target_q, quaternion_conjugate(s.quat_f)))
             w_rot += dt * (w_f * w_f * err - 2.0 * w_f * w_rot)
-            state[s_qf:s_qf + 4] = quaternion_multiply(quaternion_exp(dt * w_rot),
-                                                       state[s_qf:s_qf + 4])
-            quat_d, w_d = state[s_qf:s_qf + 4].copy(), w_rot.copy()
-    if state[s_seq] != 0.0:
-        if guard.pose_is_stale(s_guard, m):
+            s.quat_f[:] = quaternion_multiply(quaternion_exp(dt * w_rot), s.quat_f)
+            quat_d, w_d = s.quat_f.copy(), w_rot.copy()
+    if s.pose_seq[0] != 0.0:
+        if guard.pose_is_stale(s.guard, m):
             target = hold_r.copy()
         else:
             target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
-        r_d, v_d = state[s_rf:s_rf + m].copy(), state[s_vf:s_vf + m].copy()
-        target = _leash(target, r_d, gains[o_vmax], w_f)
+        r_d, v_d = s.r_f.copy(), s.v_f.copy()
+        target = _leash(target, r_d, v_max, w_f)
         a_d = w_f * w_f * (target - r_d) - 2.0 * w_f * v_d
-    f_d = gains[o_fd:o_fd + m].copy()
+    f_d = g.desired_force.copy()
     if has_wrench:
-        guard.fresh_wrench(s_guard, m, targets[_T_WRENCH_SEQ], t)
-        f_d = (_slewed_target(state[s_nf + m:s_nf + 2 * m + 1], f_target, gains[o_rate], dt)
-               * guard.wrench_factor(g_guard, s_guard, t, dt, m, targets[_T_WRENCH_SEQ]))
-    ramp = smoothstep(t_path / gains[o_ramp]) if gains[o_ramp] > 0.0 else 1.0
-    f_d *= guard.contact_ramp(g_guard, s_guard, ramp, math.sqrt(np.sum(f_d * f_d)))
-    _, d_s = guard.monitor(g_guard, s_guard, force, f_d, dt, ramp >= 1.0)
-    d_a = gains[o_da] * d_s
+        guard.fresh_wrench(s.guard, m, targets[_T_WRENCH_SEQ], t)
+        f_d = (_slewed_target(s.f_target, s.f_target_set, f_target, g.target_force_rate[0], dt)
+               * guard.wrench_factor(g.guard, s.guard, t, dt, m, targets[_T_WRENCH_SEQ]))
+    ramp_time = g.force_ramp_time[0]
+    ramp = smoothstep(t_path / ramp_time) if ramp_time > 0.0 else 1.0
+    f_d *= guard.contact_ramp(g.guard, s.guard, ramp, math.sqrt(np.sum(f_d * f_d)))
+    _, d_s = guard.monitor(g.guard, s.guard, force, f_d, dt, ramp >= 1.0)
+    d_a = g.force_admittance_damping[0] * d_s
+    limit = g.force_admittance_limit[0]
     f_norm = math.sqrt(np.sum(f_d * f_d))
     if d_a > 0.0 and f_norm > 0.0:
         n_f = f_d / f_norm
-        m_a = gains[o_ma]
+        m_a = g.force_admittance_mass[0]
         push = np.sum(n_f * (f_d - force))
-        _turn_admittance(state, s_delta, state[s_nf:s_nf + m], n_f)
-        delta, delta_dot = state[s_delta], state[s_delta + 1]
+        _turn_admittance(s.delta, s.n_f, n_f)
+        delta, delta_dot = s.delta[0], s.delta[1]
         if dt > 0.0:
-            delta, delta_dot = _admittance_step(delta, delta_dot, push, m_a, d_a,
-                                                gains[o_lim], dt)
-            state[s_delta], state[s_delta + 1] = delta, delta_dot
+            delta, delta_dot = _admittance_step(delta, delta_dot, push, m_a, d_a, limit, dt)
+            s.delta[0], s.delta[1] = delta, delta_dot
         r_d -= delta * n_f
         v_d -= delta_dot * n_f
-        if not _admittance_stopped(delta, push, gains[o_lim]):
+        if not _admittance_stopped(delta, push, limit):
             a_d -= (push - d_a * delta_dot) / m_a * n_f
-    posture = gains[o_post:o_post + n] if gains[o_post_given] > 0.0 else state[s_qs:s_qs + n]
+    posture = g.posture if g.posture_given[0] > 0.0 else s.q_start
     return r_d, v_d, a_d, f_d, quat_d, w_d, posture.copy(), ramp

@@ -67,7 +67,7 @@ from cr_control.core.linalg import (
     spd_inverse,
     tmatvec,
 )
-from cr_control.core.packing import Layout
+from cr_control.core.packing import Layout, take, views_layout
 from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.core.so3 import orientation_error
 from cr_control.models import spatial_chain as sc
@@ -76,8 +76,8 @@ from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks.references import (
     desired_motion,
     guard_state_of,
-    reference_gains,
     reference_gains_size,
+    reference_state_views,
 )
 
 #: Rotation rows of the posture projector are scaled by this length (m), see the docstring.
@@ -435,25 +435,44 @@ def clip_to_effort(limits, tau):
 
 
 # -- a cycle's common front and back, for every task-space scheme ---------------------------------
+#: The packed gains every task-space kernel starts with, block by block: the task
+#: description (TASK_SIZE values, :class:`TaskModel`), the joint limits (4 n: lower, upper,
+#: velocity, effort), the command order (n: command k is chain joint order[k]), the
+#: null-space gains (NULL_SPACE_GAINS), the desired motion's
+#: (:data:`references.ReferenceGains`). The scheme's own gains follow.
+CommonGains = namedtuple("CommonGains", ["task", "limits", "order", "null_space", "reference"])
+TASK_SIZE = 10
+
+
+@njit(cache=True, error_model="numpy")
+def common_gains_views(gains, n, m):
+    """(:data:`CommonGains` views of ``gains`` for n joints and m axes, where they end)."""
+    task, k = take(gains, 0, TASK_SIZE)
+    limits, k = take(gains, k, 4 * n)
+    order, k = take(gains, k, n)
+    null_space, k = take(gains, k, NULL_SPACE_SIZE)
+    reference, k = take(gains, k, reference_gains_size(m, n))
+    return CommonGains(task, limits, order, null_space, reference), k
+
+
 def common_gains_layout(n: int, m: int) -> Layout:
-    """The packed gains every task-space kernel starts with: the task description (10), the
-    joint limits (4 n), the command order (n: command k is chain joint order[k]), the
-    null-space gains, then the reference block (:func:`references.reference_gains`)."""
-    return Layout(task=10, limits=4 * n, order=n, null_space=NULL_SPACE_GAINS.size,
-                  reference=reference_gains(m, n).size)
+    """The Layout of :data:`CommonGains` for n joints and m axes."""
+    return views_layout(common_gains_views, n, m)
 
 
 @njit(cache=True, error_model="numpy")
 def common_blocks(gains):
-    """(task, limits, order, null-space gains, reference gains, where the scheme's own gains
-    begin) of a packed gains vector (:func:`common_gains_layout`)."""
-    n, m = int(gains[0]), int(gains[1])
-    a = 10
-    b = a + 4 * n
-    c = b + n
-    d = c + NULL_SPACE_SIZE
-    e = d + reference_gains_size(m, n)
-    return gains[:a], gains[a:b], gains[b:c], gains[c:d], gains[d:e], e
+    """:func:`common_gains_views` of a packed gains vector (n and m read from its task block)."""
+    return common_gains_views(gains, int(gains[0]), int(gains[1]))
+
+
+@njit(cache=True, error_model="numpy")
+def law_blocks(gains, state):
+    """(the scheme's own packed gains, its own state): the views of what follows the common
+    gains and the desired motion's state."""
+    common, law_at = common_blocks(gains)
+    m, n = int(common.task[1]), int(common.task[0])
+    return gains[law_at:], state[reference_state_views(state, m, n)[1]:]
 
 
 @njit(cache=True, error_model="numpy")
@@ -461,14 +480,15 @@ def task_front(chain, gains, state, targets, t, dt, q, v, force):
     """The task frame at (q, q') and the desired motion at t: (frame, f, r_d, r_d', r_d'',
     f_d, q_d, w_d, posture, ramp), f the measured force on the position axes, ramp the force
     ramp's factor."""
-    task, _, _, null_gains, ref_gains, _ = common_blocks(gains)
+    common = common_blocks(gains)[0]
+    task = common.task
     m = int(task[1])
-    frame = task_frame(chain, task, null_gains[_M_S], q, v)
+    frame = task_frame(chain, task, common.null_space[_M_S], q, v)
     f = np.empty(m)
     for i in range(m):
         f[i] = force[int(task[3 + i])]
     r_d, v_d, a_d, f_d, quat_d, w_d, posture, ramp = desired_motion(
-        task[3:6], ref_gains, state, targets, t, dt, frame.r, frame.R, q, f)
+        task[3:6], common.reference, state, targets, t, dt, frame.r, frame.R, q, f)
     return frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, ramp
 
 
@@ -479,7 +499,8 @@ def task_back(gains, state, frame, tau_task, quat_d, w_d, posture, r_d, v_d, a_d
     to the URDF efforts, in command order) and write command, reference and the status up
     to the scheme's own fields into ``out`` ([command n | reference 4m | status]); returns
     the status from the scheme's first field on, for the scheme to fill."""
-    task, limits, order, null_gains, _, _ = common_blocks(gains)
+    common = common_blocks(gains)[0]
+    task, limits, order, null_gains = common.task, common.limits, common.order, common.null_space
     n, m, m_o = int(task[0]), int(task[1]), int(task[2])
     tau_null, e_o, posture_error = null_space_torque(task, null_gains, frame, quat_d, w_d, posture)
     tau = tau_task + tau_null + joint_limit_torque(limits, null_gains, frame.q, frame.v)

@@ -15,13 +15,8 @@ from numba import njit
 from cr_control.core.linalg import tmatvec
 from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks import impedance_adaptation as impedance
-from cr_control.schemes.blocks.references import guard_state_of, reference_state_size
-from cr_control.schemes.blocks.task_space import (
-    common_blocks,
-    model_force,
-    task_back,
-    task_front,
-)
+from cr_control.schemes.blocks.references import guard_state_of
+from cr_control.schemes.blocks.task_space import law_blocks, model_force, task_back, task_front
 from cr_control.schemes.impedance.base import TaskSpaceController
 
 
@@ -30,8 +25,7 @@ def adaptive_impedance_cycle(chain, gains, state, targets, t, dt, q, v, force, o
     """One cycle of (3.32) into ``out`` (see task_space.task_back)."""
     frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, _ = task_front(
         chain, gains, state, targets, t, dt, q, v, force)
-    law_gains = gains[common_blocks(gains)[5]:]
-    law_state = state[reference_state_size(r_d.shape[0], q.shape[0]):]
+    law_gains, law_state = law_blocks(gains, state)
     e, e_dot = r_d - frame.r, v_d - frame.r_dot
     impedance.impedance_update(law_gains, law_state, e, e_dot, dt)
     k_s, d_s = guard.scales(guard_state_of(state, r_d.shape[0], q.shape[0]), r_d.shape[0])

@@ -245,8 +245,8 @@ class TaskSpaceController(Controller):
         self._kernel = type(self).kernel
         #: Where the guard's state starts in ``internal``, its event counter and the
         #: events already logged (:meth:`_log_guard_events`).
-        self._guard_at = 3 * m + n + 15
-        self._events_at = self._guard_at + 8 + m
+        self._guard_at = self.reference_state.offset("guard")
+        self._events_at = self._guard_at + contact_guard.guard_state(m).offset("events")
         self._events_seen = 0.0
         self._guard_seen = contact_guard.event_state(self.internal, self._guard_at, m)
         self._hold_data = None
@@ -334,7 +334,9 @@ class TaskSpaceController(Controller):
             **guarded, "reference_relative": float(values["reference_relative"]),
             "desired_force": values.get("desired_force", np.zeros(m)),
             "posture": posture if len(posture) else np.zeros(n),
-            "posture_given": float(len(posture) > 0)}, common.view(self.gains, "reference"))
+            "posture_given": float(len(posture) > 0),
+            "guard": contact_guard.guard_gains(m).pack(guarded)},
+            common.view(self.gains, "reference"))
         self.pack_law_gains(self.gains[common.size:])
 
     @property

@@ -19,7 +19,7 @@ from cr_control.core.linalg import matvec, tmatvec
 from cr_control.core.packing import Layout
 from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks import impedance_adaptation as impedance
-from cr_control.schemes.blocks.references import guard_state_of, reference_state_size
+from cr_control.schemes.blocks.references import guard_state_of
 from cr_control.schemes.blocks.sliding_impedance import (
     SlidingCompensator,
     boundary_layer_sign,
@@ -28,7 +28,7 @@ from cr_control.schemes.blocks.sliding_impedance import (
     sliding_status_fields,
     sliding_views,
 )
-from cr_control.schemes.blocks.task_space import common_blocks, task_back, task_front
+from cr_control.schemes.blocks.task_space import law_blocks, task_back, task_front
 from cr_control.schemes.impedance.base import TaskSpaceController
 
 
@@ -44,9 +44,8 @@ def sliding_front(chain, gains, state, targets, t, dt, q, v, force):
     r_d'', f_d, q_d, w_d, posture, e, s, r_eq', r_eq'', the scheme's own gains and state)."""
     frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, _ = task_front(
         chain, gains, state, targets, t, dt, q, v, force)
-    m, n = r_d.shape[0], q.shape[0]
-    law_gains = gains[common_blocks(gains)[5]:]
-    law_state = state[reference_state_size(m, n):]
+    m = r_d.shape[0]
+    law_gains, law_state = law_blocks(gains, state)
     g_imp, g_sl, s_imp = _sizes(m)
     e, e_dot = r_d - frame.r, v_d - frame.r_dot
     impedance_state = law_state[:s_imp]
@@ -66,8 +65,7 @@ def sliding_back(gains, state, frame, model_terms, d, f, r_d, v_d, a_d, f_d, qua
     """u = model_terms + K_s s + d sat(s/Delta) - f, tau = J^T u (3.48, 3.76) into ``out``
     with s, z, d and the estimates in the status; returns the scheme's own status fields."""
     m, n = r_d.shape[0], frame.q.shape[0]
-    law_gains = gains[common_blocks(gains)[5]:]
-    law_state = state[reference_state_size(m, n):]
+    law_gains, law_state = law_blocks(gains, state)
     g_imp, g_sl, s_imp = _sizes(m)
     _, _, _, K_s, delta, _ = sliding_views(law_gains[g_imp:g_imp + g_sl], m)
     _, d_s = guard.scales(guard_state_of(state, m, n), m)      # the monitor's damping scale

@@ -23,7 +23,7 @@ from cr_control.core.linalg import tmatvec
 from cr_control.core.packing import Layout
 from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks import unidirectional_impedance as contact
-from cr_control.schemes.blocks.references import TARGETS, guard_state_of
+from cr_control.schemes.blocks.references import TARGETS, guard_gains_of, guard_state_of
 from cr_control.schemes.blocks.task_space import common_blocks, model_force, task_back, task_front
 from cr_control.schemes.impedance.base import TaskSpaceController
 
@@ -36,14 +36,15 @@ def unidirectional_front(chain, gains, state, targets, t, dt, q, v, force):
     posture, n, gap, f_m, f_d, f_dm, e, e', the contact gains, the scheme's own gains)."""
     frame, f, r_d, v_d, a_d, f_d_ref, quat_d, w_d, posture, ramp = task_front(
         chain, gains, state, targets, t, dt, q, v, force)
-    m = r_d.shape[0]
-    law = gains[common_blocks(gains)[5]:]
+    m, n_q = r_d.shape[0], q.shape[0]
+    common, law_at = common_blocks(gains)
+    law = gains[law_at:]
     size = contact.contact_gains_size(m)
     gains_contact = law[:size]
     n, gap, f_m, f_d, f_dm = contact.contact_state(
         gains_contact, frame.r, f, f_d_ref, targets[_WRENCH_SEQ] != 0.0,
-        guard.contact_ramp(common_blocks(gains)[4][4 * m + 8 + q.shape[0]:],
-                           guard_state_of(state, m, q.shape[0]), ramp, gains_contact[0]))
+        guard.contact_ramp(guard_gains_of(common.reference, m, n_q),
+                           guard_state_of(state, m, n_q), ramp, gains_contact[0]))
     if f_dm < 0.0:          # a target pulling on the unilateral surface (module docstring)
         f_d = f_d - f_dm * n
         f_dm = 0.0

@@ -1,0 +1,111 @@
+"""The packed vectors the kernels read, named: the compiled views functions and the Python
+side's Layouts are one definition (cr_control.core.packing.views_layout), and the vectors
+are laid out as the kernels read them before their blocks were named.
+"""
+
+from collections import namedtuple
+
+import numpy as np
+import pytest
+from numba import njit
+
+from cr_control.core.packing import take, views_layout
+from cr_control.schemes.blocks import contact_guard as guard
+from cr_control.schemes.blocks import impedance_adaptation as impedance
+from cr_control.schemes.blocks.references import (
+    reference_gains,
+    reference_gains_views,
+    reference_state,
+    reference_state_views,
+)
+from cr_control.schemes.blocks.sliding_impedance import sliding_gains
+from cr_control.schemes.blocks.task_space import (
+    NULL_SPACE_SIZE,
+    common_blocks,
+    common_gains_layout,
+    law_blocks,
+)
+from cr_control.schemes.impedance.sliding import _sizes as sliding_sizes
+
+#: (m task axes, n joints): the thesis arms, a 3-axis 7-joint arm, a 1-axis line.
+SHAPES = [(2, 2), (3, 7), (3, 6), (1, 1)]
+
+
+def _same_blocks(views, layout, vector):
+    """Every named view of ``vector`` is the Layout's block of the same name."""
+    assert list(views._fields) == list(layout.shapes)
+    for name, view in zip(views._fields, views, strict=True):
+        assert np.array_equal(view, layout.view(vector, name)), name
+
+
+@pytest.mark.parametrize(("m", "n"), SHAPES)
+def test_reference_blocks_are_where_the_kernels_read_them(m, n):
+    """The views the kernels take are the Layout's blocks, and both sit where the
+    hand-written offsets had them (the guard's state at 3 m + n + 15, its gains at
+    4 m + 8 + n; sizes 5 m + n + 16 + G_s and 4 m + 10 + n + G_g)."""
+    gains_size, state_size = guard.guard_sizes(m)
+    gains, state = reference_gains(m, n), reference_state(m, n)
+    assert state.offset("guard") == 3 * m + n + 15
+    assert state.offset("n_f") == 3 * m + n + 15 + state_size
+    assert state.size == 5 * m + n + 16 + state_size
+    assert gains.offset("guard") == 4 * m + 8 + n
+    assert gains.offset("target_max_speed") == gains.size - 2
+    assert gains.size == 4 * m + 10 + n + gains_size
+    vector = np.arange(float(state.size + 3))          # + 3: the scheme's own state after it
+    views, end = reference_state_views(vector, m, n)
+    assert end == state.size
+    _same_blocks(views, state, vector)
+    vector = np.arange(float(gains.size))
+    views, end = reference_gains_views(vector, m, n)
+    assert end == gains.size
+    _same_blocks(views, gains, vector)
+    assert views.guard.shape == (gains_size,)
+    assert guard.guard_gains(m).size == gains_size
+
+
+@pytest.mark.parametrize(("m", "n"), SHAPES)
+def test_common_and_law_blocks(m, n):
+    """common_blocks reads n and m from the task block and splits a packed gains vector as
+    common_gains_layout says; the law's gains and state follow the common ones."""
+    layout = common_gains_layout(n, m)
+    assert [layout.offset(b) for b in ("limits", "order", "null_space", "reference")] == [
+        10, 10 + 4 * n, 10 + 5 * n, 10 + 5 * n + NULL_SPACE_SIZE]
+    gains = np.arange(float(layout.size + 4))
+    gains[0], gains[1] = n, m
+    views, law_at = common_blocks(gains)
+    assert law_at == layout.size
+    _same_blocks(views, layout, gains)
+    state = np.arange(float(reference_state(m, n).size + 5))
+    law_gains, law_state = law_blocks(gains, state)
+    assert np.array_equal(law_gains, gains[layout.size:])
+    assert np.array_equal(law_state, state[reference_state(m, n).size:])
+
+
+_Gappy = namedtuple("_Gappy", ["a", "b"])
+
+
+@njit
+def _gappy_views(vector, m):
+    a, k = take(vector, 0, m)
+    b, k = take(vector, k + 1, m)        # one value skipped: not a Layout
+    return _Gappy(a, b), k
+
+
+@njit
+def _short_views(vector, m):
+    a, k = take(vector, 0, m)
+    return _Gappy(a, vector[k:k]), k + 1    # says it ends one value after its blocks
+
+
+def test_views_layout_refuses_what_is_no_layout():
+    with pytest.raises(ValueError, match="block b starts at 4"):
+        views_layout(_gappy_views, 3)
+    with pytest.raises(ValueError, match="end at 2, it says 3"):
+        views_layout(_short_views, 2)
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_sliding_blocks_are_the_layouts_sizes(m):
+    """The sliding schemes' kernels split the law's gains and state with these sizes."""
+    assert sliding_sizes(m) == (impedance.gains_layout(m).size, sliding_gains(m).size,
+                                impedance.state_layout(m).size)
