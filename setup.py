@@ -47,20 +47,13 @@ setup(
     license="Apache-2.0",
     tests_require=["pytest"],
     entry_points={
+        # Each through cr_control.tools.entry: Ctrl-C while a tool starts is one line, exit 130.
         "console_scripts": [
-            "plant = cr_sim.plant_node:main",
-            "recorder = cr_control.recording.recorder:main",
-            "cr_session = cr_control.tools.session:main",
-            "cr_analyze = cr_control.analysis.analyze:main",
-            "cr_benchmark = cr_control.tools.benchmark:main",
-            "cr_param = cr_control.tools.param_tool:main",
-            "cr_lifecycle = cr_control.tools.lifecycle_tool:main",
-            "cr_fuzz = cr_control.tools.fuzz:main",
-            "cr_identify_tool = cr_control.tools.identify_tool:main",
-            "cr_sweep = cr_control.experiments.sweep:main",
-            "cr_tune = cr_control.experiments.tune:main",
-            "cr_reproduce = cr_control.experiments.reproduce:main",
+            f"{tool} = cr_control.tools.entry:{tool}" for tool in (
+                "plant", "recorder", "cr_session", "cr_analyze", "cr_benchmark", "cr_param",
+                "cr_lifecycle", "cr_fuzz", "cr_identify_tool", "cr_sweep", "cr_tune",
+                "cr_reproduce")
         ]
-        + [f"{name} = cr_control.nodes.controller_node:main_{name}" for name in SCHEMES],
+        + [f"{name} = cr_control.tools.entry:controller_{name}" for name in SCHEMES],
     },
 )
