@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from cr_control.core import topics
+from cr_control.core.rate_limited_log import RateLimitedLog
 from cr_control.core.ros_env import (
     DDS_PROFILE_VARIABLE,
     LOCKSTEP_DDS_PROFILE,
@@ -28,7 +29,6 @@ from cr_control.core.ros_env import (
 )
 from cr_control.nodes import state_source
 from cr_control.nodes.state_source import StateSourceWatch
-from cr_control.supervision.rate_limited_log import RateLimitedLog
 from cr_control.supervision.single_source import SingleSource
 
 NODE = "adaptive_impedance"

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from cr_control.supervision.rate_limited_log import RateLimitedLog, logger_emit
+from cr_control.core.rate_limited_log import RateLimitedLog, logger_emit
 from cr_control.supervision.single_source import SingleSource, expected_names, full_node_name
 
 PLANT, INTRUDER, SPARE = b"P" * 16, b"I" * 16, b"S" * 16
@@ -39,8 +39,8 @@ def test_one_line_per_key_and_period_with_the_suppressed_count():
     assert log("other", "warn", "another key") and len(lines) == 2
     clock.t += 5.0
     assert log("size", "error", "fault again")
-    assert lines[-1] == ("error", "fault again (99 more suppressed since the last such line)")
-    assert log.count["size"] == 101 and log.suppressed("size") == 0
+    assert lines[-1] == ("error", "fault again (99 more since the last such line)")
+    assert log.counts["size"] == 101 and log.suppressed("size") == 0
     clock.t += 1.0
     assert not log("size", "error", "x") and log.suppressed("size") == 1
 

@@ -70,6 +70,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from cr_control.core import cdr, topics
+from cr_control.core.rate_limited_log import RateLimitedLog, logger_emit
 from cr_control.nodes import discovery_settle, sender_aware
 from cr_control.nodes.diagnostics import ControllerDiagnostics
 from cr_control.nodes.lockstep import ReaderPacer
@@ -99,7 +100,6 @@ from cr_control.supervision.controller_inputs import (
     ControllerInputs,
     Readers,
 )
-from cr_control.supervision.rate_limited_log import RateLimitedLog, logger_emit
 from cr_control.supervision.single_source import SingleSource, expected_names
 
 __all__ = ["SOURCE_SILENCE_S", "ControllerNode", "main", "wait_for_acks"]

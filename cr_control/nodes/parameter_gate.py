@@ -39,7 +39,6 @@ import atexit
 import ctypes
 import sys
 import threading
-import time
 from collections import deque
 from collections.abc import Callable
 from contextlib import ExitStack, suppress
@@ -59,6 +58,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.service import Service
 from rclpy.type_support import check_is_valid_msg_type
+
+from cr_control.core.rate_limited_log import RateLimitedLog, logger_emit
 
 #: Parameters (set) or names (get, describe, types, list prefixes) per request at most;
 #: also the elements of one string-array value.
@@ -247,9 +248,9 @@ class ParameterGate:
                                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._wake = GuardCondition(None, None, context=node.context)
         self._stopping = False
-        #: Requests refused or dropped on their size, and when that was last logged.
+        #: Requests refused or dropped on their size (logged one line a second at most).
         self.refused = 0
-        self._logged_at = -1.0
+        self._log = RateLimitedLog(logger_emit(node.get_logger()), 1.0)
         self._thread = threading.Thread(target=self._run, name=f"{node.get_name()}_parameters",
                                         daemon=True)
         sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
@@ -304,11 +305,8 @@ class ParameterGate:
                        else f"a request of more than {MAX_ENTRIES} names refused unread"]
         reason = reasons[0] if reasons else "an empty request"
         self.refused += 1
-        now = time.monotonic()
-        if now - self._logged_at >= 1.0:
-            self._logged_at = now
-            self._node.get_logger().warn(
-                f"{gated.service.srv_name}: {reason} ({self.refused} so far)")
+        self._log("refused", "warn", lambda: f"{gated.service.srv_name}: {reason} "
+                  f"({self.refused} so far)")
         srv_type = gated.service.srv_type
         if srv_type is SetParameters:
             response = SetParameters.Response(results=[

@@ -48,6 +48,7 @@ from numba import njit
 
 from cr_control.core.linalg import all_finite
 from cr_control.core.parameters import Bound, Param
+from cr_control.core.rate_limited_log import RateLimitedLog
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 
 #: Parameters of every controller node.
@@ -306,8 +307,8 @@ class Controller(ABC):
         self.log_warning: Callable[[str], None] = _log.warning
         self.log_error: Callable[[str], None] = _log.error
         self.log_info: Callable[[str], None] = _log.info
-        self._warned_at = -math.inf
-        self._unwarned = 0
+        self._held_log = RateLimitedLog(lambda _severity, text: self.log_warning(text),
+                                        WARN_EVERY_S)
 
     def read_joint_names(self) -> list[str]:
         """Joints whose states the law reads: the ``state_joint_names`` parameter where a
@@ -564,14 +565,7 @@ class Controller(ABC):
 
     def _warn(self, reason: str) -> None:
         """Log why a cycle was held, at most every WARN_EVERY_S with a count in between."""
-        self._unwarned += 1
-        now = time.monotonic()
-        if now - self._warned_at < WARN_EVERY_S:
-            return
-        more = self._unwarned - 1
-        more = f" ({more} more held cycles since the last warning)" if more else ""
-        self._warned_at, self._unwarned = now, 0
-        self.log_warning(f"{self.scheme}: holding the last command: {reason}{more}")
+        self._held_log("held", "warn", lambda: f"{self.scheme}: holding the last command: {reason}")
 
     def _held_output(self) -> ControlOutput:
         if self._last is None:

@@ -47,7 +47,7 @@ import numpy as np
 
 from cr_control.core import topics
 from cr_control.core.parameters import Param
-from cr_control.supervision.rate_limited_log import RateLimitedLog
+from cr_control.core.rate_limited_log import RateLimitedLog
 from cr_control.supervision.single_source import SingleSource
 
 #: Another /joint_states publisher is followed only after the followed one has delivered

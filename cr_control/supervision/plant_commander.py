@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 from cr_control.core import topics
 from cr_control.core.parameters import Param
-from cr_control.supervision.rate_limited_log import Emit, RateLimitedLog
+from cr_control.core.rate_limited_log import Emit, RateLimitedLog
 from cr_control.supervision.single_source import SingleSource, expected_names
 
 #: The node names of this package's controllers (one per scheme: the executable's name).

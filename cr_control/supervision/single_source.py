@@ -25,7 +25,7 @@ The rule (one per topic, stated in docs/safety.md):
    publisher is then followed (a handover).
 
 Each refusal is counted (:attr:`SingleSource.refused`, of which :attr:`unexpected` by
-rule 2) and logged, rate-limited (:class:`~cr_control.supervision.rate_limited_log.RateLimitedLog`).
+rule 2) and logged, rate-limited (:class:`~cr_control.core.rate_limited_log.RateLimitedLog`).
 Node names are not authenticated by DDS: a process that takes the expected node's name
 is not told apart by this rule (SROS2's access control is what keeps other processes off
 the topic, https://docs.ros.org/en/jazzy/Tutorials/Advanced/Security/Introducing-ros2-security.html).
@@ -40,7 +40,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 
-from cr_control.supervision.rate_limited_log import RateLimitedLog
+from cr_control.core.rate_limited_log import RateLimitedLog
 
 #: A GID the graph did not know is looked up again at most this often (s of ``clock``):
 #: a flood of messages of an unknown publisher costs one graph query per period.

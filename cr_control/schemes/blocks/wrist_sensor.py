@@ -86,6 +86,7 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
+from cr_control.core import rate_limited_log as core_log
 from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.models.spatial_chain import (
     AXIS,
@@ -320,30 +321,27 @@ def sensor_placement(chain_model, sensor_frame: str) -> pin.SE3:
     return pin.SE3(frame.placement)
 
 
-class RateLimitedLog:
-    """One line at most every ``every`` seconds of ``clock`` (monotonic), saying how many
-    were held back since the last one (as :meth:`Controller._warn`)."""
+class RateLimitedLog(core_log.RateLimitedLog):
+    """The one rate-limited logger (:mod:`cr_control.core.rate_limited_log`) for one kind of
+    line, called as ``log(write, message)``: ``write`` is where the line goes (the law's
+    warning logger, which the node sets after the law is built); one line at most every
+    ``every`` seconds of ``clock``, saying how many were held back since the last one."""
 
     def __init__(self, every: float = WARN_EVERY_S,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.every, self.clock = every, clock
-        self._at = -math.inf
-        self._held = 0
-        #: Lines asked for in all (logged or held back).
-        self.count = 0
+        super().__init__(lambda _severity, text: self._write(text), every, clock)
+        self._write: Callable[[str], None] = print
 
-    def __call__(self, log: Callable[[str], None], message: str) -> bool:
+    @property
+    def count(self) -> int:
+        """Lines asked for in all (logged or held back)."""
+        return self.counts.get("line", 0)
+
+    def __call__(self, log: Callable[[str], None], message: str) -> bool:  # type: ignore[override]
         """Log ``message`` through ``log`` unless one was logged less than ``every`` ago;
         True if logged."""
-        self.count += 1
-        now = self.clock()
-        if now - self._at < self.every:
-            self._held += 1
-            return False
-        more = f" ({self._held} more since the last such line)" if self._held else ""
-        self._at, self._held = now, 0
-        log(message + more)
-        return True
+        self._write = log
+        return super().__call__("line", "warn", message)
 
 
 def weight_wrench(R: np.ndarray, mass: float, com: np.ndarray, gravity: np.ndarray) -> np.ndarray:
