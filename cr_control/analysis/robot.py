@@ -221,6 +221,7 @@ def _paths(session: Any) -> dict[str, Any]:
 
 
 def _figure_3d(session: Any, out: Path, written: list[Path]) -> None:
+    # lazy: no plotting cost where no figure is drawn
     from matplotlib.figure import Figure
 
     p = _paths(session)
@@ -251,6 +252,7 @@ def _figure_3d(session: Any, out: Path, written: list[Path]) -> None:
 
 
 def _figure_top(session: Any, out: Path, written: list[Path]) -> None:
+    # lazy: no plotting cost where no figure is drawn
     from matplotlib.figure import Figure
 
     p = _paths(session)

@@ -92,6 +92,7 @@ def start(address: str | None = None, workers: int | None = None) -> int:
     join the cluster at ``address``; return the CPUs tasks may use. EngineError (one line)
     if it cannot."""
     _set_env(COMMON_ENV)
+    # lazy: Ray takes seconds to import and only runs sweeps, tuning and the report
     import ray
 
     if ray.is_initialized():                # a caller (a test) started it
@@ -147,6 +148,7 @@ def _set_env(values: dict[str, str]) -> None:
 
 def stop() -> None:
     """Leave Ray (a local instance stops with it); undo start()'s environment."""
+    # lazy: Ray takes seconds to import and only runs sweeps, tuning and the report
     import ray
 
     if ray.is_initialized():
@@ -158,6 +160,7 @@ def stop() -> None:
             os.environ[key] = value
     _saved_env.clear()
     if _saved_constants:
+        # lazy: Ray takes seconds to import and only runs sweeps, tuning and the report
         from ray._private import ray_constants
 
         for key, value in _saved_constants.items():
@@ -178,6 +181,7 @@ def run(scheme: str, robot: str | None, duration: float, jobs: Sequence[Job], ca
     """Run ``jobs`` on Ray, ``capacity`` tasks in flight (2 per CPU would queue: one each),
     ``chunk`` points per task (default :func:`chunk_size`); ``done(records)`` is called in
     this process as each task finishes. EngineError if a task is lost after its retries."""
+    # lazy: Ray takes seconds to import and only runs sweeps, tuning and the report
     import ray
 
     if not jobs:

@@ -50,6 +50,7 @@ def timed_chunk(scheme: str, duration: float, jobs) -> float:
 
 def _timed(jobs, scheme: str, duration: float, cpus: int, chunk: int) -> tuple[float, float]:
     """(wall time of ``jobs`` on Ray, ``cpus`` tasks in flight; seconds spent inside tasks)."""
+    # lazy: Ray takes seconds to import and only runs sweeps, tuning and the report
     import ray
 
     task = ray.remote(timed_chunk)

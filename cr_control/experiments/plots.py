@@ -45,6 +45,7 @@ def plotted_metrics(names: list[str], wanted: list[str] | None) -> list[str]:
 def plot(out: Path, names: list[str], table: list[dict[str, Any]], inputs: list[str],
          wanted: list[str] | None, grid: bool) -> list[Path]:
     """Write the figures (see the module docstring); return their paths."""
+    # lazy: no plotting cost where no figure is drawn
     from matplotlib.figure import Figure
 
     if not table or not 1 <= len(inputs) <= 2:

@@ -68,6 +68,7 @@ def write_csv(path: Path, names: list[str], table: list[dict[str, Any]]) -> None
 
 
 def _arrow_type(values: list[Any]) -> Any:
+    # lazy: pyarrow only for the parquet table
     import pyarrow as pa
 
     if all(isinstance(v, bool) for v in values):

@@ -112,6 +112,7 @@ def load(path: Path) -> tuple[dict[str, Any], Targets]:
 
 
 def _space(ranges: dict[str, Range]) -> dict[str, Any]:
+    # lazy: Ray takes seconds to import and only runs sweeps, tuning and the report
     from ray import tune
 
     return {name: (tune.loguniform(r.low, r.high) if r.log else tune.uniform(r.low, r.high))
@@ -132,6 +133,7 @@ def _narrowed(ranges: dict[str, Range], best: dict[str, float]) -> dict[str, Ran
 
 def search(cfg: dict[str, Any], targets: Targets, out: Path, cpus: int) -> list[dict[str, Any]]:
     """Both rounds on Ray Tune; every trial as {config, objective, result, feasible, why}."""
+    # lazy: Ray takes seconds to import and only runs sweeps, tuning and the report
     from ray import tune
     from ray.tune.search.basic_variant import BasicVariantGenerator
 

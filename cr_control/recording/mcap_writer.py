@@ -73,10 +73,12 @@ def header_stamp_ns(cdr: bytes) -> int:
 def _compressor(name: str) -> Callable[[bytes], bytes] | None:
     """The chunk compression function of ``name`` (None: uncompressed)."""
     if name == "zstd":
+        # lazy: an optional compression, imported when chosen
         import zstandard
 
         return zstandard.ZstdCompressor().compress
     if name == "lz4":
+        # lazy: an optional compression, imported when chosen
         import lz4.frame
 
         return lz4.frame.compress

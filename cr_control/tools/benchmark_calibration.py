@@ -32,6 +32,7 @@ def loop_ns_per_iteration(n: int = 300_000, repeats: int = 7) -> float:
 def aba_us_per_call(n: int = 2000, repeats: int = 5) -> float | None:
     """µs per Pinocchio ABA call (TwoLinkArm.forward_dynamics), best of ``repeats``."""
     try:
+        # lazy: loaded when the command runs (cr_control.tools)
         import numpy as np
 
         # lazy: loaded when the command runs (cr_control.tools)
@@ -56,6 +57,7 @@ def step_us_hot_and_after_idle(cycles: int = 400, idle_s: float = 0.0009) -> dic
     idle"): on a virtual machine the second is several times the first (caches and
     predictors go cold while the vCPU idles), which is why the compute time in a node
     exceeds the offline one."""
+    # lazy: loaded when the command runs (cr_control.tools)
     import numpy as np
 
     # lazy: loaded when the command runs (cr_control.tools)
@@ -102,6 +104,7 @@ def calibrate() -> dict[str, float | None]:
 def mcap_log_times(path: Path) -> list[int]:
     """Sorted log (receive) times of every message of an MCAP file, from its message
     indexes (no chunk is decompressed); from the messages themselves if it has no summary."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from mcap.opcode import Opcode
     from mcap.reader import make_reader
 

@@ -194,6 +194,7 @@ def run_session(title: str, domain: int, out: Path, duration: float, mode: str, 
 
 
 def _write_recorder_params(path: Path, mcap: Path, record_topics: list[str], nodes: list[str]) -> None:
+    # lazy: loaded when the command runs (cr_control.tools)
     import yaml
 
     path.write_text(yaml.safe_dump({"recorder": {"ros__parameters": {
@@ -334,6 +335,7 @@ def _recorder_missed(log: Path) -> int | None:
 
 def _recorded_except(path: Path, skip: str) -> int:
     """Messages in an MCAP file (summary statistics) on every channel but ``skip``."""
+    # lazy: loaded when the command runs (cr_control.tools)
     from mcap.reader import make_reader
 
     with open(path, "rb") as f:
