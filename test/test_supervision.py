@@ -178,3 +178,126 @@ def test_the_plant_expects_the_controllers_of_this_package_by_default():
     refusals = [text for _, text in lines if "refused unread" in text]
     assert len(refusals) == 2                 # once per kind: by the rule, then foreign
     assert "node '/fuzz_intruder'" in refusals[0] and "commands_foreign" in refusals[0]
+
+
+# -- the controller's input guards, without ROS (fake readers: the policy, not the CDR) ----
+def controller_inputs(expected=("/plant",), lockstep=False, graph=None, advertises=False,
+                      sensor_frame=""):
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from cr_control.supervision.controller_inputs import ControllerInputs, Readers
+
+    graph = {PLANT: "/plant", INTRUDER: "/intruder"} if graph is None else graph
+    log, lines = recording_log()
+    source = SingleSource("/joint_states", expected, 2.0, graph.get, log, what="states")
+
+    def fields(data):                         # b"k,names...": stamp k ms, positions 1, 2, ...
+        if not data.startswith(b"s"):
+            return None
+        k, *names = data[1:].decode().split(",")
+        n = len(names)
+        return SimpleNamespace(sec=7, nanosec=int(k) * 1_000_000, name=tuple(names),
+                               position=tuple(float(i + 1) for i in range(n)),
+                               velocity=(0.0,) * n)
+
+    def wrench(data):
+        if not data.startswith(b"w"):
+            return None
+        frame, *force = data[1:].decode().split(",")
+        return SimpleNamespace(force=tuple(map(float, force)), torque=(0.0, 0.0, 0.0),
+                               frame_id=frame)
+
+    readers = Readers(fields, wrench, lambda data: None, lambda data: None, 64, 4, 64, 64)
+    inputs = ControllerInputs(readers, ("joint1", "joint2"),
+                              {"max_sensor_force": 1000.0, "sensor_frame": sensor_frame},
+                              np.full(0, np.nan), (), source, log, lockstep,
+                              lambda: advertises, "test")
+    inputs.interface = "ok"
+    inputs.active = True
+    return inputs, lines
+
+
+def s(k: int, names: str = "joint1,joint2") -> bytes:
+    return f"s{k},{names}".encode()
+
+
+def test_the_controller_inputs_answer_only_the_plants_valid_states():
+    from cr_control.supervision.controller_inputs import ANSWER, NOTHING, REPEAT
+
+    inputs, lines = controller_inputs()
+    assert inputs.state(s(0), INTRUDER, None, 0.0) == NOTHING          # the rule: not /plant
+    assert inputs.state(b"x" * 65, PLANT, None, 0.0) == NOTHING        # too long: unread
+    assert inputs.state(None, PLANT, 10_000_000, 0.0) == NOTHING       # not even copied
+    assert inputs.inputs_oversized == 2 and inputs.states_foreign == 1
+    assert inputs.state(b"garbage", PLANT, None, 0.001) == NOTHING     # unreadable
+    assert inputs.state(s(1, "joint2,joint1"), PLANT, None, 0.002) == ANSWER
+    assert inputs.position.tolist() == [2.0, 1.0] and inputs.t == 7.001   # law's joint order
+    assert inputs.state(s(1, "joint2,joint1"), PLANT, None, 0.003) == REPEAT
+    assert inputs.state(s(2), INTRUDER, None, 0.004) == NOTHING
+    assert inputs.states_foreign == 2
+    assert inputs.state(s(3), PLANT, None, 0.005, newer_queued=True) == NOTHING
+    assert inputs.states_skipped == 1
+    assert inputs.state(s(4, "joint1,elbow"), PLANT, None, 0.006) == ANSWER   # held by the law
+    assert inputs.position.size == 0
+    assert any("lacks some of" in text for _, text in lines)
+
+
+def test_inactive_a_state_is_read_once_then_the_newest_kept_for_activation():
+    from cr_control.supervision.controller_inputs import ANSWER, NOTHING, OBSERVE
+
+    inputs, _ = controller_inputs()
+    inputs.active = False
+    reads = []
+    read = inputs.read_state
+    inputs.read_state = lambda data: reads.append(data) or read(data)
+    assert inputs.state(s(0), PLANT, None, 0.0) == OBSERVE and inputs.t == 7.0
+    for k in range(1, 50):
+        assert inputs.state(s(k), PLANT, None, k * 1e-3) == NOTHING
+    assert len(reads) == 1
+    held = inputs.activate()
+    assert held == (s(49), PLANT, None)
+    assert inputs.state(*held[:3], 0.05) == ANSWER and inputs.stamp == (7, 49_000_000)
+
+
+def test_a_state_before_the_plants_interface_waits_in_lockstep_only():
+    from cr_control.supervision.controller_inputs import ANSWER, NOTHING
+
+    for lockstep in (False, True):
+        inputs, _ = controller_inputs(lockstep=lockstep, advertises=True)
+        inputs.interface = "unknown"
+        assert inputs.state(s(0), PLANT, None, 0.0) == NOTHING
+        waiting = inputs.interface_known(True)
+        assert (waiting is not None) == lockstep
+        if waiting:
+            assert inputs.state(*waiting, 0.001) == ANSWER
+    inputs, _ = controller_inputs(advertises=True)
+    inputs.interface_known(False)                                      # refused: never
+    assert inputs.state(s(0), PLANT, None, 0.0) == NOTHING and inputs.interface == "refused"
+
+
+def test_a_lockstep_state_is_judged_again_once_the_graph_names_its_publisher():
+    from cr_control.supervision.controller_inputs import ANSWER, NOTHING
+
+    graph: dict[bytes, str] = {}
+    inputs, _ = controller_inputs(lockstep=True, graph=graph)
+    assert inputs.state(s(0), PLANT, None, 0.0) == NOTHING
+    graph[PLANT] = "/plant"
+    inputs.source.known(PLANT, "/plant")                                # the watch's tick
+    held = inputs.named()
+    assert held == (s(0), PLANT, None) and inputs.named() is None
+    assert inputs.state(*held, 0.1) == ANSWER
+
+
+def test_a_wrench_of_another_frame_or_beyond_max_sensor_force_is_a_sensor_fault():
+    inputs, lines = controller_inputs(sensor_frame="ft")
+    inputs.wrench_message(b"wft,4,-3,0")
+    assert inputs.force.tolist() == [4.0, -3.0, 0.0] and inputs.wrench_seen
+    for bad in (b"wft,1e12,0,0", b"wft,nan,0,0", b"wft,inf,0,0", b"wtool,1,0,0"):
+        inputs.wrench_message(bad)
+    assert inputs.force.tolist() == [4.0, -3.0, 0.0] and inputs.sensor_faults == 4
+    inputs.wrench_message(b"w" + b"x" * 64)                           # beyond its bound
+    inputs.wrench_message(b"not a wrench")
+    assert inputs.inputs_oversized == 1 and inputs.sensor_faults == 4
+    assert sum("sensor fault" in text for _, text in lines) == 1      # one line per episode

@@ -169,8 +169,7 @@ class ControllerInputs:
             return NOTHING
         state = self.read_state(data)
         if state is None:
-            self.log(f"unreadable {topics.JOINT_STATES}", "error",
-                     f"a message on {topics.JOINT_STATES} could not be read: ignored")
+            self.unreadable(topics.JOINT_STATES)
             return NOTHING
         self._state_size = len(data)
         if source is not None:
@@ -269,16 +268,27 @@ class ControllerInputs:
                  f"a message of {size} bytes on {topic} ({why}) dropped unread; counted in "
                  "inputs_oversized")
 
+    def unreadable(self, topic: str) -> None:
+        self.log(f"unreadable {topic}", "error",
+                 f"a message on {topic} could not be read: ignored")
+
+    def _read_bounded(self, topic: str, data: bytes, max_bytes: int,
+                      read: Callable[[bytes], Any], bound: str) -> Any | None:
+        """``read(data)``, or None (counted or logged) if longer than ``max_bytes`` or
+        unreadable; ``bound`` names what is bounded in the log line."""
+        if len(data) > max_bytes:
+            self.oversized(topic, len(data), f"{bound}: at most {max_bytes} bytes read")
+            return None
+        fields = read(data)
+        if fields is None:
+            self.unreadable(topic)
+        return fields
+
     def wrench_message(self, data: bytes) -> None:
         """A serialized wrench: its force and torque become the ones in use if sane."""
-        if len(data) > self.read.wrench_max_bytes:
-            self.oversized(topics.WRENCH, len(data),
-                           f"a WrenchStamped has at most {self.read.wrench_max_bytes}")
-            return
-        wrench = self.read.wrench(data)
+        wrench = self._read_bounded(topics.WRENCH, data, self.read.wrench_max_bytes,
+                                    self.read.wrench, "a WrenchStamped")
         if wrench is None:
-            self.log(f"unreadable {topics.WRENCH}", "error",
-                     f"a message on {topics.WRENCH} could not be read: ignored")
             return
         if self.sensor_frame and wrench.frame_id != self.sensor_frame:
             self.sensor_faults += 1
@@ -305,14 +315,9 @@ class ControllerInputs:
     def sensors_message(self, data: bytes) -> None:
         """The plant's extra measurements the law reads, found by label (published just
         before the state they belong to)."""
-        if len(data) > self.read.array_max_bytes:
-            self.oversized(topics.PLANT_SENSORS, len(data),
-                           f"at most {self.read.array_max_bytes} read")
-            return
-        sensors = self.read.sensors(data)
+        sensors = self._read_bounded(topics.PLANT_SENSORS, data, self.read.array_max_bytes,
+                                     self.read.sensors, "the plant's sensors")
         if sensors is None:
-            self.log(f"unreadable {topics.PLANT_SENSORS}", "error",
-                     f"a message on {topics.PLANT_SENSORS} could not be read: ignored")
             return
         label = sensors.labels[0] if sensors.labels else ""
         if label != self._sensor_cache[0]:
