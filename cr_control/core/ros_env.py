@@ -248,8 +248,9 @@ def use_node_dds_profile(env: dict[str, str] | None = None, lockstep: bool = Fal
 def drop_node_dds_profile(env: dict[str, str] | None = None) -> bool:
     """Take the nodes' own profiles (:data:`NODE_DDS_PROFILE`, :data:`LOCKSTEP_DDS_PROFILE`)
     out of ``env`` (default: os.environ), where a process inherited one that is not meant
-    for it: the recorder, whose /joint_states reader must match every writer (the nodes'
-    profile lets one match). A profile of the user's stays. True if one was taken out."""
+    for it: the recorder, which records with Fast DDS's defaults (the nodes' profile tunes
+    the loop's writers and participants). A profile of the user's stays. True if one was
+    taken out."""
     env = os.environ if env is None else env
     if env.get(DDS_PROFILE_VARIABLE) not in (str(NODE_DDS_PROFILE), str(LOCKSTEP_DDS_PROFILE)):
         return False
