@@ -268,10 +268,12 @@ class Intruder:
                 time.sleep(1.0 / rate_hz)
 
     def zero_ft(self, calls: int = 15, every_s: float = 0.2) -> None:
-        """``calls`` requests to zero the wrist sensor (~/zero_ft) while the tool presses,
-        ``every_s`` apart; the answers go to replies."""
+        """The wiping stopped, then ``calls`` requests to zero the wrist sensor (~/zero_ft)
+        while the tool presses, ``every_s`` apart; the answers go to replies."""
         from std_srvs.srv import Trigger
 
+        self.set_parameters({"reference_amplitude": [0.0, 0.0, 0.0]})   # zeroing wants stillness
+        self.spin_until(lambda: False, 2.0)
         client = self.node.create_client(Trigger, f"{self.controller}/zero_ft")
         if not self.spin_until(client.service_is_ready, 10.0):
             raise RuntimeError(f"{self.controller}/zero_ft never appeared")
@@ -369,8 +371,9 @@ CASES = [
     Case("wrench_pull_away", "a wrench target of -10 N (pull away) 2 s, then +10 N 2 s",
          lambda x: x.target_wrench([(-10.0, 2.0), (10.0, 2.0)]), suite="robot",
          force_judged=True, extra_s=2.0),
-    Case("zeroing_walk", "~/zero_ft 15 times, every 0.2 s, while pressing",
-         lambda x: x.zero_ft(), suite="robot", force_judged=True),
+    Case("zeroing_walk", "the wiping stopped (reference_amplitude 0), then ~/zero_ft 15 times, "
+         "every 0.2 s, while pressing", lambda x: x.zero_ft(), suite="robot", force_judged=True,
+         extra_s=2.0),
     Case("silent_intruder", "a node with a silent /joint_states and a /joint_commands "
          "publisher before the session starts, then 1e308 N m commands for 1 s",
          lambda x: x.commands(lambda i: 1e308, 1000), suite="robot",
@@ -433,10 +436,15 @@ def judge(recording: Path | None, case: str, alive: bool, note: str,
     """The row of a case from its recording (None: nothing recorded); ``reference``: the
     baseline's median fresh share (None: the run's own, for the baseline)."""
     from cr_control.analysis.analyze import load_session
+    from cr_control.analysis.session_file import SessionError
 
     if recording is None or not recording.exists():
         return Row(case, alive, False, math.nan, False, False, math.nan, note or "no recording")
-    session = load_session(recording)
+    try:
+        session = load_session(recording)
+    except SessionError as exc:              # e.g. a session that never started: no messages
+        return Row(case, alive, False, math.nan, False, False, math.nan,
+                   note or str(exc).rsplit(": ", 1)[-1])
     states, timing = session.joint_states, session.timing
     # Rows with none of the plant's joints (a 10 MB state of other names) carry no value.
     finite = states is not None
