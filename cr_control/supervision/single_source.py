@@ -127,9 +127,9 @@ class SingleSource:
                 self.handovers += 1
                 silent = now - self.last_heard
                 self.log(f"{self.topic} handover", "warn", lambda: (
-                    f"{self.topic}: {self.describe(previous)} delivered nothing for "
-                    f"{silent:.3g} {self.unit}: following {self.describe(gid)} from now on "
-                    f"(handover {self.handovers})"))
+                    f"{self.topic}: handover: {self.what} now from {self.describe(gid)}; "
+                    f"{self.describe(previous)} delivered nothing for {silent:.3g} "
+                    f"{self.unit} (handover {self.handovers})"))
         self.last_heard = now
 
     def silent_for(self, now: float) -> float:
