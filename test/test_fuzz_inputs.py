@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import math
 import struct
+import sys
+import time
+from pathlib import Path
 
 import pytest
 from robot_data import example_robot_data_installed
@@ -99,3 +102,27 @@ def test_a_chunk_without_a_stored_crc_is_read(tmp_path):
     path.write_bytes(bytes(data))
     session = load_session(path)
     assert len(session.joint_states.time) == 400 and not session.warnings
+
+
+def test_a_hanging_tool_is_killed_with_its_children(tmp_path, monkeypatch):
+    """A tool that never returns (and started a child that would outlive it) is killed as a
+    process group after WALL_LIMIT_S: its row says so."""
+    child = tmp_path / "child.pid"
+    hang = ("import subprocess, sys, time; "
+            "p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)']); "
+            f"open({str(child)!r}, 'w').write(str(p.pid)); time.sleep(60)")
+    monkeypatch.setattr(fi, "command", lambda name: [sys.executable, "-c", hang])
+    monkeypatch.setattr(fi, "WALL_LIMIT_S", 2.0)
+    row = fi.run_input(fi.InputCase("hang", "file", "x", lambda folder: ["x"], "x", 2), tmp_path)
+    assert row.hung and row.exit_code == -9 and row.verdict == "FAILED: still running after 2 s"
+    assert not running(int(child.read_text()))     # the child went with it
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` still runs (a zombie, dead but not reaped, does not)."""
+    stat = Path(f"/proc/{pid}/stat")
+    for _ in range(100):                           # SIGKILL to a group is delivered at once
+        if not stat.exists() or stat.read_text().rsplit(")", 1)[1].split()[0] in "ZX":
+            return False
+        time.sleep(0.05)
+    return True

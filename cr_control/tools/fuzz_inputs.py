@@ -22,6 +22,7 @@ from __future__ import annotations
 import importlib.metadata
 import os
 import resource
+import signal
 import struct
 import subprocess
 import sys
@@ -442,7 +443,8 @@ def run_input(case: InputCase, folder: Path) -> InputRow:
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         start = time.monotonic()
         proc = subprocess.Popen([*command(argv[0]), *argv[1:]], stdin=subprocess.DEVNULL,
-                                stdout=out, stderr=err, env=env, cwd=folder, preexec_fn=_limits)
+                                stdout=out, stderr=err, env=env, cwd=folder, preexec_fn=_limits,
+                                start_new_session=True)    # its group: killed whole on a hang
         hung = False
         try:
             while True:
@@ -451,12 +453,12 @@ def run_input(case: InputCase, folder: Path) -> InputRow:
                     break
                 if time.monotonic() - start > WALL_LIMIT_S:
                     hung = True
-                    proc.kill()
+                    os.killpg(proc.pid, signal.SIGKILL)
                     pid, status, usage = os.wait4(proc.pid, 0)
                     break
                 time.sleep(0.02)
-        except BaseException:                  # interrupted: the case's process goes too
-            proc.kill()
+        except BaseException:                  # interrupted: the case's processes go too
+            os.killpg(proc.pid, signal.SIGKILL)
             os.wait4(proc.pid, 0)
             raise
         seconds = time.monotonic() - start
