@@ -154,7 +154,7 @@ def test_plant_node_reports_a_safe_stop_at_once_and_clears_it_on_resume(ros_env,
     node._publish_timing(at_once=True)
     assert node.diagnostics.last.level == WARN            # no tick yet: no fresh command
     assert node.diagnostics.last.values["safe_stop"] == "0"
-    node._engage_safe_stop(SAFE_STOP_WATCHDOG, "SAFE STOP: test")
+    node.supervisor.engage(SAFE_STOP_WATCHDOG, "SAFE STOP: test")
     status = node.diagnostics.last
     assert status.level == ERROR and status.message.startswith("safe stop (watchdog)")
     node._publish_timing(at_once=True)

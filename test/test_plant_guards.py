@@ -27,7 +27,8 @@ from std_msgs.msg import Float64MultiArray
 from cr_control.core import topics
 from cr_control.nodes import sender_aware
 from cr_control.nodes.qos import PUBLISH_QOS
-from cr_sim.plant_node import MAX_COMMAND_BYTES, MAX_COMMAND_JOINTS, NODE_PARAMETERS, PlantNode
+from cr_sim.plant_node import NODE_PARAMETERS, PlantNode
+from cr_sim.supervisor import MAX_COMMAND_BYTES, MAX_COMMAND_JOINTS
 
 A, B, C = b"A" * 16, b"B" * 16, b"C" * 16          # publisher GIDs (16 bytes, as rmw's)
 DEFAULTS = {p.name: p.default for p in NODE_PARAMETERS}
@@ -48,7 +49,7 @@ def send(node: PlantNode, gid: bytes, effort, names=None) -> None:
 def timing(node: PlantNode) -> dict[str, float]:
     """The node's /plant/timing values as it publishes them now, by name."""
     node._publish_timing(at_once=True)
-    return dict(zip(topics.PLANT_TIMING_FIELDS, node._timing_msg.data, strict=True))
+    return dict(zip(topics.PLANT_TIMING_FIELDS, node.report.message.data, strict=True))
 
 
 # -- one commander ---------------------------------------------------------------------------
@@ -75,8 +76,8 @@ def test_a_second_publisher_is_refused_counted_and_logged_once(make_node):
     t = timing(node)
     assert t["commands_foreign"] == 5 and t["commander_handovers"] == 0
     assert t["commands_refused"] == 0 and t["commands_oversized"] == 0
-    assert node.log.count("refused commands from") == 1
-    assert node.log.count("one commander at a time") == 1
+    assert node.log.count("refused unread: following") == 1
+    assert node.log.count("another is followed only after 50 cycles without a valid message") == 1
 
 
 @pytest.mark.ros
@@ -96,7 +97,7 @@ def test_handover_only_after_the_stated_silence(make_node):
     send(node, A, [3.0, 3.0])                    # A is now the other publisher
     np.testing.assert_array_equal(node.command, [2.0, 2.0])
     assert node.stats.commands_foreign == 2
-    assert node.log.count("refused commands from") == 1      # still logged once
+    assert node.log.count("refused unread: following") == 1  # still logged once
     t = timing(node)
     assert (t["commands_foreign"], t["commander_handovers"]) == (2, 1)
 
@@ -160,10 +161,10 @@ def test_lockstep_follows_the_same_rule_in_wall_time(make_node):
     assert node.plant.time == pytest.approx(PERIOD)
     send(node, B, [2.0, 2.0])                    # B answers the next state: refused, no step
     assert node.plant.time == pytest.approx(PERIOD) and node.stats.commands_foreign == 1
-    node._commander_wall = time.monotonic() - 19.5 * PERIOD    # A silent 19 periods
+    node.supervisor.guard.last_heard = time.monotonic() / PERIOD - 19.5   # A silent 19 periods
     send(node, B, [2.0, 2.0])
     assert node.plant.time == pytest.approx(PERIOD) and node.stats.commands_foreign == 2
-    node._commander_wall = time.monotonic() - 20.5 * PERIOD    # 20: B takes over and steps
+    node.supervisor.guard.last_heard = time.monotonic() / PERIOD - 20.5   # 20: B takes over
     send(node, B, [2.0, 2.0])
     assert node.plant.time == pytest.approx(2 * PERIOD)
     np.testing.assert_array_equal(node.command, [2.0, 2.0])
@@ -318,14 +319,14 @@ def test_the_plant_refuses_a_second_publisher_over_ros(make_node):
         assert spin_until(lambda: [i.node_name for i in node.get_publishers_info_by_topic(
             topics.JOINT_COMMANDS)] == ["guards_rogue"] * 2)
         controller.publish(JointState(name=list(node.command_names), effort=[1.0, -1.0]))
-        assert spin_until(lambda: node._commander is not None)
+        assert spin_until(lambda: node.supervisor.commander is not None)
         for k in range(10):          # one at a time: the subscription keeps the last 10
             rogue.publish(JointState(name=list(node.command_names), effort=[20.0 * (-1) ** k, 1e308]))
             assert spin_until(lambda k=k: node.stats.commands_foreign == k + 1), vars(node.stats)
         rogue.publish(JointState(name=["j"] * 1000, effort=[0.0] * 1000))
         assert spin_until(lambda: node.stats.commands_oversized == 1), vars(node.stats)
         np.testing.assert_array_equal(node.command, [1.0, -1.0])
-        assert node.log.count("refused commands from") == 1
+        assert node.log.count("refused unread: following") == 1
         assert node.log.count("guards_rogue") >= 1          # the log names the nodes
     finally:
         spin.shutdown()
@@ -379,4 +380,4 @@ def test_a_rogue_beside_a_running_controller_is_refused(ros_env):
     assert timing_field(last, "commander_handovers") == 0
     assert max(speeds) < 2.0
     assert not any(timing_field(m, "safe_stop") for m in timing)
-    assert out.count("refused commands from") == 1 and "guards_fuzz" in out, out[-3000:]
+    assert out.count("refused unread: following") == 1 and "guards_fuzz" in out, out[-3000:]

@@ -112,25 +112,25 @@ def test_the_second_report_is_done_one_chore_per_idle_slot_never_in_one_callback
     stop) a tick runs one that waited more than CHORE_WAIT_TICKS; the window is reported
     once, when its piece runs."""
     from cr_control.core import topics
-    from cr_sim.plant_node import CHORE_WAIT_TICKS
+    from cr_sim.plant_report import CHORE_WAIT_TICKS
 
     fresh_share = topics.PLANT_TIMING_FIELDS.index("window_fresh_share")
     published = []
     node.timing_pub.publish = lambda msg: published.append(list(msg.data))
     tick(node, 1)
     node._publish_timing()                         # the 1 s timer: four chores queued
-    assert len(node._chores) == 4 and published == []
+    assert len(node.report.chores) == 4 and published == []
     answer(node, [0.1, 0.0])                       # step ahead, then the first chore
-    assert len(node._chores) == 3 and published == []
+    assert len(node.report.chores) == 3 and published == []
     tick(node, 1)
     answer(node, [0.1, 0.0])                       # the second: /plant/timing published
-    assert len(node._chores) == 2 and len(published) == 1
+    assert len(node.report.chores) == 2 and len(published) == 1
     assert published[0][fresh_share] == pytest.approx(0.5)   # window_fresh_share: 1 of 2 ticks fresh
     for _ in range(CHORE_WAIT_TICKS):              # no answers: ticks only
         tick(node, 1)
-    assert len(node._chores) == 2                  # waited CHORE_WAIT_TICKS ticks
+    assert len(node.report.chores) == 2                  # waited CHORE_WAIT_TICKS ticks
     tick(node, 1)
-    assert len(node._chores) == 1                  # the tick ran one (no idle slot came)
+    assert len(node.report.chores) == 1                  # the tick ran one (no idle slot came)
     assert len(published) == 1                     # the window was reported once
 
     node.lockstep = True

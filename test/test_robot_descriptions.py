@@ -45,8 +45,8 @@ from cr_control.models.urdf import (
 from cr_control.schemes.registry import make_controller
 from cr_control.tools.fuzz_inputs import LINK7, PANDA_BASE, PANDA_TIP, chain, panda_urdf, panda_with
 from cr_sim.loop_stats import SAFE_STOP_CONTACT_FORCE, SAFE_STOP_JOINT_VELOCITY
-from cr_sim.plant_node import reflex
 from cr_sim.plants.registry import SCENARIOS, make_plant
+from cr_sim.supervisor import reflex
 
 PANDA = panda_urdf()
 BASE, TIP = PANDA_BASE, PANDA_TIP
@@ -292,7 +292,8 @@ def errors(node) -> list[str]:
 
 def published(node) -> np.ndarray:
     """What the node's last joint state and wrench messages carry."""
-    return np.concatenate([node._q_out, node._v_out, node._e_out, node._wrench_out])
+    out = node.messages
+    return np.concatenate([out.position, out.velocity, out.effort, out.wrench_values])
 
 
 @pytest.mark.ros

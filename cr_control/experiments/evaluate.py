@@ -15,6 +15,10 @@ recording's bookkeeping (publishers, stamps, sample counts).
 
 Status of a point (a stated rule):
 - ``failed``: the scheme or plant could not be built or stepped (the reason: the error);
+- ``stopped``: the plant's supervision safe-stopped it (a reflex: the contact force above
+  the plant's ``max_contact_force``, a joint faster than its URDF limit), as a lockstep
+  session of the same settings stops (the reason: the reflex's line and its time; the
+  metrics are those of the run braked from then on);
 - ``diverged``: a state, force, command or status value became non-finite, or a joint
   position or velocity norm went beyond the controller's own ``max_joint_position`` /
   ``max_joint_velocity`` (states it would hold as absurd);
@@ -144,4 +148,7 @@ def run_point(scheme: str, robot: str | None, duration: float, controller_overri
     except Exception as exc:                    # noqa: BLE001 - a point's failure is a result
         text = str(exc).splitlines()[0] if str(exc) else ""
         return {"status": "failed", "reason": f"{type(exc).__name__}: {text}"[:300]}
+    if run.safe_stop_reason:
+        return {"status": "stopped", "reason": f"{run.safe_stop_text} at t = "
+                f"{run.safe_stop_at:.3f} s", **values}
     return {"status": "diverged" if why else "ok", "reason": why, **values}

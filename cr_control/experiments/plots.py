@@ -2,7 +2,7 @@
 
 Written to DIR/plots/<metric>.png for each plotted metric: the SPEC's ``metrics``, else those
 of :data:`DEFAULT_METRICS` the table has. A list-valued input is plotted by its first element
-(the axis label says so). Points that diverged or failed are drawn as red crosses on the
+(the axis label says so). Points that stopped, diverged or failed are drawn as red crosses on the
 line (at the axis bottom) and left blank (hatched) in a heatmap; a random sweep of two
 parameters is a scatter coloured by the metric. More than two varied parameters: no figure.
 """
@@ -59,7 +59,7 @@ def plot(out: Path, names: list[str], table: list[dict[str, Any]], inputs: list[
         fig = Figure(figsize=(6.5, 4.2), layout="constrained")
         ax = fig.subplots()
         bad = int((~ok).sum())
-        title = metric + (f"  ({bad} diverged/failed)" if bad else "")
+        title = metric + (f"  ({bad} stopped/diverged/failed)" if bad else "")
         if len(inputs) == 1:
             values = [row[inputs[0]] for row in table]
             x = np.array([_scalar(v) for v in values])
@@ -68,7 +68,7 @@ def plot(out: Path, names: list[str], table: list[dict[str, Any]], inputs: list[
             ax.plot(x[order], shown[order], "o-", label=metric)
             if bad:
                 low = np.nanmin(shown) if np.isfinite(shown).any() else 0.0
-                ax.plot(x[~ok], np.full(bad, low), "x", color="red", label="diverged/failed")
+                ax.plot(x[~ok], np.full(bad, low), "x", color="red", label="stopped/diverged/failed")
             ax.set_xlabel(_label(inputs[0], values))
             ax.set_ylabel(metric)
             if _log_scale(x):
@@ -100,7 +100,7 @@ def plot(out: Path, names: list[str], table: list[dict[str, Any]], inputs: list[
             else:
                 mesh = ax.scatter(xa, xb, c=z, cmap="viridis")
                 if bad:
-                    ax.plot(xa[~ok], xb[~ok], "x", color="red", label="diverged/failed")
+                    ax.plot(xa[~ok], xb[~ok], "x", color="red", label="stopped/diverged/failed")
                 if _log_scale(xa):
                     ax.set_xscale("log")
                 if _log_scale(xb):

@@ -169,8 +169,8 @@ def main(argv: Iterable[str] | None = None) -> int:
         engine.stop()
     counts = result.counts()
     print(f"{len(result.rows)} points ({result.computed} computed, {result.skipped} from an "
-          f"earlier run): {counts.get('ok', 0)} ok, {counts.get('diverged', 0)} diverged, "
-          f"{counts.get('failed', 0)} failed")
+          f"earlier run): {counts.get('ok', 0)} ok, {counts.get('stopped', 0)} stopped by a "
+          f"reflex, {counts.get('diverged', 0)} diverged, {counts.get('failed', 0)} failed")
     print(f"wrote {args.out / 'results.csv'}, results.parquet and {len(result.figures)} figures")
     return 0
 

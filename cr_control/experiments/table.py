@@ -2,7 +2,7 @@
 
 One row per point, sorted by point index: ``point``, the varied inputs (``node.param``
 columns; a list value as JSON text in the CSV and as a list in parquet), ``status``
-(ok / diverged / failed), ``reason``, then the metrics (``cr_analyze``'s names: the SPEC's
+(ok / stopped / diverged / failed), ``reason``, then the metrics (``cr_analyze``'s names: the SPEC's
 ``metrics`` if given, else every metric any point has, in the order the first point with it
 lists them). Floats in the CSV are written as Python's shortest round-trip repr, so the file
 is the same bytes for the same numbers.

@@ -2,6 +2,12 @@
 
 Bit-for-bit deterministic (same inputs, same numbers); equivalent to the plant's
 lockstep mode: the command computed from the state at t_k is held over [t_k, t_k+1).
+The plant is stepped through the plant node's own supervision
+(:class:`cr_sim.supervisor.PlantSupervisor`, as in lockstep without command limits): a
+reflex (contact force, joint velocity) engages the safe stop at the step a lockstep session
+would, the brakes act from then on (the controller's commands are still recorded, as a
+session records them), and the run says so (``safe_stop_reason``, ``safe_stop_at``,
+``safe_stop_text``). A run that trips no reflex is the loop without supervision, bit for bit.
 
 A controller that reads the whole wrench (``reads_wrench``: a wrist sensor to compensate)
 is given force and torque, as the node gives it a WrenchStamped's; the plant's true contact
@@ -19,6 +25,7 @@ import numpy as np
 
 from cr_control.schemes.controller import Controller
 from cr_sim.plants.base import Plant
+from cr_sim.supervisor import PlantSupervisor
 
 
 @dataclass
@@ -37,6 +44,11 @@ class OfflineRun:
     #: The plant's true (noise-free) contact force, base frame, where the plant has one
     #: (``contact_force``: urdf_surface, the thesis arms); NaN otherwise.
     true_force: np.ndarray | None = None
+    #: The plant's safe stop: its reason (cr_sim.loop_stats.SAFE_STOP_*; 0: none), the
+    #: simulated time it began (s; NaN: never) and its log line ("REFLEX: ...").
+    safe_stop_reason: int = 0
+    safe_stop_at: float = float("nan")
+    safe_stop_text: str = ""
 
     def column(self, name: str) -> np.ndarray:
         """A named reference or status column (fields of topics.py)."""
@@ -46,8 +58,10 @@ class OfflineRun:
 
 
 def run(controller: Controller, plant: Plant, duration: float, period: float = 1e-3,
-        hook: Callable[[int, float, Controller, Plant], None] | None = None) -> OfflineRun:
-    """Step ``plant`` and ``controller`` for ``duration`` s at ``period`` (module docstring)."""
+        hook: Callable[[int, float, Controller, Plant], None] | None = None,
+        supervise: bool = True) -> OfflineRun:
+    """Step ``plant`` and ``controller`` for ``duration`` s at ``period`` (module docstring);
+    ``supervise`` False: without the plant's supervision (no reflex, no brakes)."""
     steps = int(round(duration / period))
     n = len(plant.joint_names)
     n_command = len(plant.command_joints)
@@ -80,6 +94,7 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         "true_force": np.full((steps, 3), np.nan),
     }
     true_force = getattr(plant, "contact_force", None)
+    supervisor = PlantSupervisor(plant, period) if supervise else None
     for k in range(steps):
         m = plant.measurement()
         if hook is not None:
@@ -98,13 +113,21 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         force = (np.concatenate([m.force, m.torque]) if getattr(controller, "reads_wrench", False)
                  else m.force)
         out = controller.step(sec + nanosec * 1e-9, q, v, force)
-        plant.step(out.command if to_plant is None else out.command[to_plant], period)
+        command = out.command if to_plant is None else out.command[to_plant]
+        if supervisor is None:
+            plant.step(command, period)
+        else:
+            supervisor.hold(command)
+            supervisor.step()
         rows["time"][k] = m.time
         rows["position"][k] = m.position
         rows["velocity"][k] = m.velocity
         rows["force"][k] = m.force
-        rows["command"][k] = out.command if to_plant is None else out.command[to_plant]
+        rows["command"][k] = command
         rows["reference"][k] = out.reference
         rows["status"][k] = out.status
+    stop = {} if supervisor is None or supervisor.stop_time is None else {
+        "safe_stop_reason": supervisor.stop_reason, "safe_stop_at": supervisor.stop_time,
+        "safe_stop_text": supervisor.stop_text}
     return OfflineRun(**rows, reference_fields=list(controller.reference_fields),
-                      status_fields=list(controller.status_fields))
+                      status_fields=list(controller.status_fields), **stop)
