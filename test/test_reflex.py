@@ -45,7 +45,7 @@ def answer(node: PlantNode, **values) -> None:
 def timing(node: PlantNode) -> dict[str, float]:
     """The node's /plant/timing values as it publishes them now, by name."""
     node._publish_timing(at_once=True)
-    return dict(zip(topics.PLANT_TIMING_FIELDS, node._timing_msg.data, strict=True))
+    return dict(zip(topics.PLANT_TIMING_FIELDS, node.report.message.data, strict=True))
 
 
 def pressed_into_the_plane(node: PlantNode, depth: float) -> None:
@@ -329,3 +329,55 @@ def test_mrac_force_with_thesis_defaults_ends_in_a_reflex_stop(tmp_path):
     assert np.abs(applied[:trip] - sent[:trip]).max() < 1e-12
     assert np.abs(applied[trip:] - sent[trip:]).min() > 0.1
 
+
+
+# -- the offline loop and a lockstep session agree; a session ends ----------------------------
+def cr_session(tmp_path, name: str, *args: str) -> tuple[int, str, str]:
+    """cr_session in lockstep (in this process): its exit status, stderr and plant log."""
+    import contextlib
+    import io
+
+    from cr_control.tools import session
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = session.main(["--mode", "lockstep", "--out", str(tmp_path), "--name", name,
+                             "--domain-id", str(next_domain()), "--no-analysis", *args])
+    return code, err.getvalue(), (tmp_path / name / "logs" / "plant.log").read_text()
+
+
+@pytest.mark.ros
+def test_a_stiff_plane_stops_offline_as_in_lockstep(tmp_path):
+    """The chapter 3 plane at K_e = 1500 N/m: the contact force overshoots the 50 N reflex
+    limit. The offline loop (what cr_sweep and cr_tune run) and a lockstep session of the
+    same settings (the plant node's defaults: its command limits clip nothing before the
+    trip) trip the same reflex at the same simulated time."""
+    from cr_control import offline
+
+    stiff = offline.run_scheme("adaptive_impedance", 1.0, plant_overrides={"stiffness": 1500.0})
+    assert stiff.safe_stop_reason == SAFE_STOP_CONTACT_FORCE
+    code, err, log = cr_session(tmp_path, "stiff", "--scheme", "adaptive_impedance",
+                                "--duration", "1", "-p", "plant.stiffness=1500.0")
+    assert code == 0, err
+    assert log.count("REFLEX: contact force") == 1, log[-3000:]
+    lockstep_at = float(log.split("max_contact_force 50 N at t = ")[1].split(" s")[0])
+    print(f"\nreflex stop: offline at {stiff.safe_stop_at:.3f} s, lockstep at {lockstep_at:.3f} s")
+    assert abs(lockstep_at - stiff.safe_stop_at) <= 3 * PERIOD
+
+
+@pytest.mark.ros
+def test_a_lockstep_session_ends_with_why_once_nothing_commands_the_stopped_plant(tmp_path):
+    """backstepping_force with a 1.2 N force reflex (the plant starts at 1.5 N): the plant
+    safe-stops at its first step and retracts; the law, saturated against it, stops
+    commanding after max_bad_cycles (offline: at 0.73 s) and has no brake to publish. The
+    session then ends at once with the plant's reason and exit status 3, instead of waiting
+    for a command that never comes (before: 140-180 s and "plant did not finish")."""
+    code, err, log = cr_session(tmp_path, "ends", "--scheme", "backstepping_force",
+                                "--duration", "10", "-p", "plant.max_contact_force=1.2")
+    assert code == 3, err
+    assert err.startswith("cr_session: the plant ended the session early: ENDED: in a safe stop "
+                          "(contact force reflex at t = 0.001 s) and no command for 2."), err
+    assert "the controller stopped commanding" in err
+    assert log.count("REFLEX: contact force") == 1 and log.count("ENDED:") == 1, log[-3000:]
+    ended_at = float(err.split("the plant stops at t = ")[1].split(" s")[0])
+    assert 0.5 < ended_at < 1.0                  # where the law stopped: far from the 10 s

@@ -24,7 +24,7 @@ from cr_sim.plant_node import PlantNode
 def main(args: list[str] | None = None) -> int:
     """Run the plant and the controller of the scheme named first on the command line
     (exit 2 for an unknown scheme, 1 with one line on stderr if a node refuses to start,
-    1 if the controller refuses the plant's command interface)."""
+    1 if the controller refuses the plant's command interface, else the plant's exit code)."""
     argv = list(sys.argv if args is None else args)
     if len(argv) < 2 or argv[1] not in SCHEMES:
         print(f"usage: container SCHEME [--ros-args ...]; schemes: {sorted(SCHEMES)}", file=sys.stderr)
@@ -45,7 +45,7 @@ def main(args: list[str] | None = None) -> int:
     for future in (plant.finished, controller.refused):
         future.add_done_callback(end)
     spin_nodes(nodes, until=done)
-    return 1 if controller.refused.done() else 0
+    return 1 if controller.refused.done() else plant.exit_code
 
 
 if __name__ == "__main__":

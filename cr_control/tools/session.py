@@ -48,6 +48,7 @@ from cr_control.schemes.registry import (
     default_plant_overrides,
     default_scenario,
 )
+from cr_sim.supervisor import EXIT_ENDED
 
 STARTUP_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 15.0
@@ -76,6 +77,18 @@ class SessionConfig:
     #: ``switch_at`` simulated seconds (cr_lifecycle switch): ``--switch-to``, ``--switch-at``.
     switch_to: str | None = None
     switch_at: float = 0.0
+
+
+class EndedEarlyError(SessionError):
+    """The plant ended the session early (exit code
+    :data:`cr_sim.supervisor.EXIT_ENDED`): in a safe stop that no command followed, or with
+    no valid command after its start. ``result``: the session's files (the recording holds
+    everything up to the end); the message: the plant's line saying why."""
+
+    def __init__(self, result: SessionResult, line: str) -> None:
+        super().__init__(f"the plant ended the session early: {line or 'see its log'} "
+                         f"(logs: {result.logs})")
+        self.result = result
 
 
 @dataclass
@@ -521,6 +534,7 @@ class Session:
             self.progress(f"session {self.dir} (ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']}, "
                           f"discovery {self.env['ROS_AUTOMATIC_DISCOVERY_RANGE']})")
             main = "container" if cfg.composed else "plant"
+            ended = False
             try:
                 if cfg.record:
                     self._start("recorder", "cr_control.recording.recorder")
@@ -536,14 +550,22 @@ class Session:
                             cfg.switch_to, "--at", repr(cfg.switch_at)], one_shot=True)
                     self._start(main, "cr_sim.plant_node")
                 budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
-                self.group.wait(main, budget, "] [plant]: t=")
+                try:
+                    self.group.wait(main, budget, "] [plant]: t=")
+                except SessionError:
+                    if self.processes[main].returncode != EXIT_ENDED:
+                        raise
+                    ended = True
             finally:
                 self.stop()
         finally:
             if domain is None:
                 self.domain.release()
-        return SessionResult(self.dir, self.mcap if cfg.record else None, self.params_path, self.logs,
-                             cfg.mode)
+        result = SessionResult(self.dir, self.mcap if cfg.record else None, self.params_path,
+                               self.logs, cfg.mode)
+        if ended:
+            raise EndedEarlyError(result, self.group.last_line(main, "ENDED: "))
+        return result
 
     def stop(self) -> None:
         """Stop every process still running: SIGINT, then SIGKILL after a timeout."""
@@ -569,7 +591,11 @@ def analyse(result: SessionResult, progress=print) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """Command-line interface of cr_session."""
-    p = argparse.ArgumentParser(prog="cr_session", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="cr_session", description=__doc__.split("\n\n")[0],
+        epilog="exit status: 0 done; 1 the session failed (one line on stderr); 3 the plant "
+               "ended it early, in a safe stop no command followed or with no valid command "
+               "after its start (its reason on stderr, the recording kept); 130 interrupted")
     p.add_argument("--scheme", default="adaptive_impedance", choices=sorted(SCHEMES))
     p.add_argument("--robot", choices=sorted(ROBOTS),
                    help="run on this robot's URDF, wiping a table (task-space schemes; "
@@ -611,6 +637,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"logs: {result.logs}")
         if result.mcap and not args.no_analysis:
             analyse(result)
+    except EndedEarlyError as exc:
+        print(f"cr_session: {exc}", file=sys.stderr)
+        if exc.result.mcap:
+            print(f"recording: {exc.result.mcap}")
+        return EXIT_ENDED
     except (SessionError, OSError) as exc:
         print(f"cr_session: {exc}", file=sys.stderr)
         return 1
