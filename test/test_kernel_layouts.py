@@ -25,7 +25,9 @@ from cr_control.schemes.blocks.task_space import (
     common_gains_layout,
     law_blocks,
 )
+from cr_control.schemes.impedance.nn_adaptive_impedance import NN_STATUS_FIELDS
 from cr_control.schemes.impedance.sliding import _sizes as sliding_sizes
+from cr_control.schemes.registry import make_controller
 
 #: (m task axes, n joints): the thesis arms, a 3-axis 7-joint arm, a 1-axis line.
 SHAPES = [(2, 2), (3, 7), (3, 6), (1, 1)]
@@ -109,3 +111,31 @@ def test_sliding_blocks_are_the_layouts_sizes(m):
     """The sliding schemes' kernels split the law's gains and state with these sizes."""
     assert sliding_sizes(m) == (impedance.gains_layout(m).size, sliding_gains(m).size,
                                 impedance.state_layout(m).size)
+#: Each scheme's own packed gains, after its family's: (name, value from the parameters).
+OWN_GAINS = {
+    "impedance": ["d_m", "k_m"],
+    "fuzzy_unidirectional": ["lambda", "k_p", "k_n", "d_s", "d_med", "d_b", "f_max", "f_min"],
+    "robust_adaptive_impedance": ["delta_M", "delta_C", "delta_G", "delta_f"],
+    "nn_adaptive_impedance": ["d", "Gamma_M", "Gamma_C", "Gamma_G", "inv_variance"],
+}
+
+
+@pytest.mark.parametrize("scheme", sorted(OWN_GAINS))
+def test_a_law_declares_itself_through_one_set_of_hooks(scheme):
+    """A scheme extends its family's law_* hooks: its own gains are packed by name at the
+    end of the law's block, where its kernel reads them, from its parameters; no other
+    hooks (own_*, OWN) exist."""
+    controller = make_controller(scheme)
+    names = OWN_GAINS[scheme]
+    layout, law = controller.law_gains, controller.gains[controller.common.size:]
+    assert list(layout.shapes)[-len(names):] == names
+    assert layout.offset(names[0]) == layout.size - len(names)
+    values = {**controller.values}
+    if scheme == "nn_adaptive_impedance":
+        values["inv_variance"] = 1.0 / values["rbf_variance"]
+    for name in names:
+        assert layout.view(law, name)[0] == values[name], name
+    assert not [a for a in dir(controller) if a.startswith("own_") or a == "OWN"]
+    own_status = {"nn_adaptive_impedance": NN_STATUS_FIELDS}.get(scheme, [])
+    if own_status:                                   # after the family's fields
+        assert controller.status_fields[-len(own_status):] == own_status

@@ -51,6 +51,10 @@ class Layout:
             offset += math.prod(shape)
         self.size = offset
 
+    def extended(self, **shapes: int | tuple[int, ...]) -> Layout:
+        """This layout's blocks followed by ``shapes`` (a new Layout)."""
+        return Layout(**self.shapes, **shapes)
+
     def offset(self, name: str) -> int:
         """Where block ``name`` starts."""
         return self.offsets[name]

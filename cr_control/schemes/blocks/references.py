@@ -132,6 +132,12 @@ _T_POSE_SEQ, _T_POS, _T_QUAT, _T_WRENCH_SEQ, _T_FORCE = (TARGETS.offset(n) for n
 _NOTHING = np.zeros(0)
 
 
+#: One cycle's desired motion (:func:`desired_motion`) on the task's m position axes:
+#: position r, velocity r', acceleration r'' and force f_d (m each), orientation quat
+#: [w, x, y, z] and angular velocity w (base frame), the null-space posture (n), and the
+#: force ramp's factor now (1 once ramped in; 0 during a guarded approach).
+DesiredMotion = namedtuple("DesiredMotion", ["r", "v", "a", "f", "quat", "w", "posture", "ramp"])
+
 #: The desired motion's packed gains, block by block (names = parameter names; the posture
 #: comes here too: it is held like the start pose; ``guard``: :func:`contact_guard.guard_gains`).
 ReferenceGains = namedtuple("ReferenceGains", [
@@ -343,9 +349,8 @@ def _rows_of(x, rows, m):
 
 @njit(cache=True, error_model="numpy")
 def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
-    """(r_d, r_d', r_d'', f_d, q_d, w_d, posture, ramp) at time t (module docstring); ramp
-    is the force ramp's factor now (1 once ramped in; 0 during a guarded approach), for laws
-    with a desired force of their own.
+    """The :data:`DesiredMotion` at time t (module docstring); its ramp is for laws with a
+    desired force of their own.
 
     ``rows`` are the position rows of the task, ``gains`` / ``state`` the packed
     :data:`ReferenceGains` / :data:`ReferenceState` blocks, ``targets`` the TARGETS vector;
@@ -373,8 +378,9 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
             s.r_start[:] = r
         else:
             guard.monitor(g.guard, s.guard, force, np.zeros(m), dt, False)
-            return (r_a, v_a, a_a, np.zeros(m), s.quat_start.copy(), np.zeros(3),
-                    (g.posture if g.posture_given[0] > 0.0 else s.q_start).copy(), 0.0)
+            return DesiredMotion(r_a, v_a, a_a, np.zeros(m), s.quat_start.copy(), np.zeros(3),
+                                 (g.posture if g.posture_given[0] > 0.0 else s.q_start).copy(),
+                                 0.0)
     t_path = guard.trajectory_time(s.guard, t)
     offset = g.reference_offset.copy()
     if g.reference_relative[0] > 0.0:
@@ -444,4 +450,4 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
         if not _admittance_stopped(delta, push, limit):
             a_d -= (push - d_a * delta_dot) / m_a * n_f
     posture = g.posture if g.posture_given[0] > 0.0 else s.q_start
-    return r_d, v_d, a_d, f_d, quat_d, w_d, posture.copy(), ramp
+    return DesiredMotion(r_d, v_d, a_d, f_d, quat_d, w_d, posture.copy(), ramp)

@@ -477,9 +477,8 @@ def law_blocks(gains, state):
 
 @njit(cache=True, error_model="numpy")
 def task_front(chain, gains, state, targets, t, dt, q, v, force):
-    """The task frame at (q, q') and the desired motion at t: (frame, f, r_d, r_d', r_d'',
-    f_d, q_d, w_d, posture, ramp), f the measured force on the position axes, ramp the force
-    ramp's factor."""
+    """(the task frame at (q, q'), the measured force f on the position axes, the
+    :data:`references.DesiredMotion` at t)."""
     common = common_blocks(gains)[0]
     task = common.task
     m = int(task[1])
@@ -487,14 +486,13 @@ def task_front(chain, gains, state, targets, t, dt, q, v, force):
     f = np.empty(m)
     for i in range(m):
         f[i] = force[int(task[3 + i])]
-    r_d, v_d, a_d, f_d, quat_d, w_d, posture, ramp = desired_motion(
-        task[3:6], common.reference, state, targets, t, dt, frame.r, frame.R, q, f)
-    return frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, ramp
+    desired = desired_motion(task[3:6], common.reference, state, targets, t, dt, frame.r,
+                             frame.R, q, f)
+    return frame, f, desired
 
 
 @njit(cache=True, error_model="numpy")
-def task_back(gains, state, frame, tau_task, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e,
-              out):
+def task_back(gains, state, frame, tau_task, desired, f, e, out):
     """Complete the command (the null-space torque and the joint limit guard added, clipped
     to the URDF efforts, in command order) and write command, reference and the status up
     to the scheme's own fields into ``out`` ([command n | reference 4m | status]); returns
@@ -502,13 +500,16 @@ def task_back(gains, state, frame, tau_task, quat_d, w_d, posture, r_d, v_d, a_d
     common = common_blocks(gains)[0]
     task, limits, order, null_gains = common.task, common.limits, common.order, common.null_space
     n, m, m_o = int(task[0]), int(task[1]), int(task[2])
-    tau_null, e_o, posture_error = null_space_torque(task, null_gains, frame, quat_d, w_d, posture)
+    tau_null, e_o, posture_error = null_space_torque(task, null_gains, frame, desired.quat,
+                                                     desired.w, desired.posture)
     tau = tau_task + tau_null + joint_limit_torque(limits, null_gains, frame.q, frame.v)
     clip_to_effort(limits, tau)
     for k in range(n):
         out[k] = tau[int(order[k])]
+    f_d = desired.f
     reference = out[n:n + 4 * m]
-    reference[:m], reference[m:2 * m], reference[2 * m:3 * m], reference[3 * m:] = r_d, v_d, a_d, f_d
+    reference[:m], reference[m:2 * m] = desired.r, desired.v
+    reference[2 * m:3 * m], reference[3 * m:] = desired.a, f_d
     status = out[n + 4 * m:]
     status[:] = 0.0
     for i in range(m):

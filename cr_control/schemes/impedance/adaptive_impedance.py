@@ -23,15 +23,15 @@ from cr_control.schemes.impedance.base import TaskSpaceController
 @njit(cache=True, error_model="numpy")
 def adaptive_impedance_cycle(chain, gains, state, targets, t, dt, q, v, force, out):
     """One cycle of (3.32) into ``out`` (see task_space.task_back)."""
-    frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, _ = task_front(
-        chain, gains, state, targets, t, dt, q, v, force)
+    frame, f, desired = task_front(chain, gains, state, targets, t, dt, q, v, force)
     law_gains, law_state = law_blocks(gains, state)
-    e, e_dot = r_d - frame.r, v_d - frame.r_dot
+    m = f.shape[0]
+    e, e_dot = desired.r - frame.r, desired.v - frame.r_dot
     impedance.impedance_update(law_gains, law_state, e, e_dot, dt)
-    k_s, d_s = guard.scales(guard_state_of(state, r_d.shape[0], q.shape[0]), r_d.shape[0])
-    u0 = a_d + impedance.impedance_acceleration(law_state, k_s * e, d_s * e_dot)
+    k_s, d_s = guard.scales(guard_state_of(state, m, q.shape[0]), m)
+    u0 = desired.a + impedance.impedance_acceleration(law_state, k_s * e, d_s * e_dot)
     tau = tmatvec(frame.J, model_force(chain, frame, u0, frame.r_dot) - f)
-    extras = task_back(gains, state, frame, tau, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out)
+    extras = task_back(gains, state, frame, tau, desired, f, e, out)
     extras[:] = law_state[law_state.shape[0] - extras.shape[0]:]   # the estimates: the tail
 
 

@@ -115,11 +115,15 @@ def max_effort_on(param: Param, model: TaskModel) -> Param:
 class TaskSpaceController(Controller):
     """A task-space law on any URDF arm (module docstring).
 
-    Subclasses set ``scheme``, ``ROBOT_DEFAULTS`` (thesis values of the robot parameters),
-    :meth:`reference_defaults`, :meth:`law_parameters` (thesis defaults, m axes), the
-    scheme's own status fields (:meth:`law_status_fields`), its gains and state
-    (:meth:`law_gains_layout`, :meth:`law_gain_values`, :meth:`law_initial_state`) and
-    ``kernel(chain, gains, state, targets, t, dt, q, v, force, out)``.
+    Subclasses set ``scheme``, ``ROBOT_DEFAULTS`` (thesis values of the robot parameters)
+    and :meth:`reference_defaults`; a law declares itself with ``kernel(chain, gains,
+    state, targets, t, dt, q, v, force, out)`` and five hooks: its parameters
+    (:meth:`law_parameters`, thesis defaults, m axes), its status fields
+    (:meth:`law_status_fields`, after the task-space ones), its packed gains
+    (:meth:`law_gains_layout`, filled by name from :meth:`law_gain_values`) and its state
+    (:meth:`law_initial_state`). A family of laws (:mod:`.sliding`, :mod:`.unidirectional`)
+    declares its shared part with the same hooks; its schemes extend them with ``super()``,
+    their own gains, state and status fields after the family's.
     """
 
     JOINT_NAMES_PARAMETER = JOINT_NAMES
@@ -337,7 +341,7 @@ class TaskSpaceController(Controller):
             "posture_given": float(len(posture) > 0),
             "guard": contact_guard.guard_gains(m).pack(guarded)},
             common.view(self.gains, "reference"))
-        self.pack_law_gains(self.gains[common.size:])
+        self.law_gains.pack(self.law_gain_values(), self.gains[common.size:])
 
     @property
     def reads_wrench(self) -> bool:
@@ -389,10 +393,6 @@ class TaskSpaceController(Controller):
         f_d = np.asarray(self.values.get("desired_force", np.zeros(self.model.m)), dtype=float)
         norm = float(np.linalg.norm(f_d))
         return -f_d / norm if norm > 0.0 else np.zeros(self.model.m)
-
-    def pack_law_gains(self, out: np.ndarray) -> None:
-        """Pack the scheme's own gains into ``out`` (default: law_gains_layout by name)."""
-        self.law_gains.pack(self.law_gain_values(), out)
 
     # -- targets ---------------------------------------------------------------------------------
     def set_target_pose(self, position: np.ndarray, quaternion: np.ndarray) -> bool:

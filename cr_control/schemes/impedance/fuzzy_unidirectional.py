@@ -52,14 +52,14 @@ FUZZY_PARAMETERS = [
 @njit(cache=True, error_model="numpy")
 def fuzzy_unidirectional_cycle(chain, gains, state, targets, t, dt, q, v, force, out):
     """One cycle of (5.7) with d_m from (5.20) and k_m = lambda d_m into ``out``."""
-    (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, f_dm, e, e_dot,
-     gains_contact, own) = unidirectional_front(chain, gains, state, targets, t, dt, q, v, force)
+    cycle = unidirectional_front(chain, gains, state, targets, t, dt, q, v, force)
+    own, f_dm = cycle.own, cycle.f_dm
     lam, k_p, k_n, d_s, d_med, d_b, f_max, f_min = (own[0], own[1], own[2], own[3], own[4],
                                                     own[5], own[6], own[7])
-    s = normal_sliding(n, e, e_dot, lam)
-    d_m = rule_set_2_damping(s, f_dm - f_m, f_dm - f_max, f_dm - f_min, k_p, k_n, d_s, d_med, d_b)
-    unidirectional_back(chain, gains, state, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
-                        f_m, f_d, e, e_dot, gains_contact, d_m, lam * d_m, lam, out)
+    s = normal_sliding(cycle.n, cycle.e, cycle.e_dot, lam)
+    d_m = rule_set_2_damping(s, f_dm - cycle.f_m, f_dm - f_max, f_dm - f_min, k_p, k_n, d_s,
+                             d_med, d_b)
+    unidirectional_back(chain, gains, state, cycle, d_m, lam * d_m, lam, out)
 
 
 class FuzzyUnidirectionalController(UnidirectionalController):
@@ -67,8 +67,11 @@ class FuzzyUnidirectionalController(UnidirectionalController):
 
     scheme = "fuzzy_unidirectional"
     kernel = fuzzy_unidirectional_cycle
-    OWN = tuple(p.name for p in FUZZY_PARAMETERS)
-
     @classmethod
-    def own_parameters(cls):
-        return list(FUZZY_PARAMETERS)
+    def law_parameters(cls, model, thesis):
+        return super().law_parameters(model, thesis) + FUZZY_PARAMETERS
+
+    def law_gains_layout(self):
+        """The contact's gains, then rule set 2's (in FUZZY_PARAMETERS' order)."""
+        return super().law_gains_layout().extended(**dict.fromkeys(
+            (p.name for p in FUZZY_PARAMETERS), 1))

@@ -24,11 +24,9 @@ from cr_control.schemes.impedance.unidirectional import (
 @njit(cache=True, error_model="numpy")
 def impedance_cycle(chain, gains, state, targets, t, dt, q, v, force, out):
     """One cycle of (5.7) with the fixed d_m, k_m into ``out``."""
-    (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, _, e, e_dot,
-     gains_contact, own) = unidirectional_front(chain, gains, state, targets, t, dt, q, v, force)
-    d_m, k_m = own[0], own[1]
-    unidirectional_back(chain, gains, state, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap,
-                        f_m, f_d, e, e_dot, gains_contact, d_m, k_m, k_m / d_m, out)
+    cycle = unidirectional_front(chain, gains, state, targets, t, dt, q, v, force)
+    d_m, k_m = cycle.own[0], cycle.own[1]
+    unidirectional_back(chain, gains, state, cycle, d_m, k_m, k_m / d_m, out)
 
 
 class ImpedanceController(UnidirectionalController):
@@ -36,13 +34,15 @@ class ImpedanceController(UnidirectionalController):
 
     scheme = "impedance"
     kernel = impedance_cycle
-    OWN = ("d_m", "k_m")
-
     @classmethod
-    def own_parameters(cls):
-        return [
+    def law_parameters(cls, model, thesis):
+        return super().law_parameters(model, thesis) + [
             Param("d_m", 12.0, "Desired impedance damping d_m (N s/m) (section 5.3: 12).",
                   "positive", bound=Bound.GAIN),
             Param("k_m", 60.0, "Desired impedance stiffness k_m (N/m) (section 5.3: 60).",
                   "nonnegative", bound=Bound.GAIN),
         ]
+
+    def law_gains_layout(self):
+        """The contact's gains, then d_m and k_m."""
+        return super().law_gains_layout().extended(d_m=1, k_m=1)

@@ -66,6 +66,7 @@ from cr_control.schemes.impedance.sliding import SlidingController, sliding_back
 
 NN_STATUS_FIELDS = ["M_r_norm", "M_r_hat_norm", "C_r_norm", "C_r_hat_norm", "G_r_norm",
                     "G_r_hat_norm"]
+_M_HAT, _C_HAT, _G_HAT = (NN_STATUS_FIELDS.index(f"{x}_r_hat_norm") for x in "MCG")
 
 
 def nn_parameters(n: int, seed: list[float], null_space_model: bool) -> list[Param]:
@@ -154,10 +155,11 @@ def joint_path(model, values: dict, samples: int = 400) -> tuple[np.ndarray, np.
 def nn_adaptive_impedance_cycle(chain, gains, state, targets, centres_q, centres_qv, t, dt, q,
                                 v, force, out):
     """One cycle of (3.76) with the weight laws (3.79-3.81) into ``out``."""
-    (frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, e, s, v_eq, a_eq, own,
-     weights) = sliding_front(chain, gains, state, targets, t, dt, q, v, force)
+    cycle = sliding_front(chain, gains, state, targets, t, dt, q, v, force)
+    own, weights = cycle.own_gains, cycle.own_state
+    s, v_eq, a_eq = cycle.s, cycle.v_eq, cycle.a_eq
     d, Gamma_M, Gamma_C, Gamma_G, inv_variance = own[0], own[1], own[2], own[3], own[4]
-    m, n = r_d.shape[0], q.shape[0]
+    m, n = s.shape[0], q.shape[0]
     mm = m * m
     n_q, n_qv = centres_q.shape[0], centres_qv.shape[0]
     theta_M = weights[:mm * n_q].reshape((n_q, mm))          # columns: M_r row-major
@@ -175,12 +177,11 @@ def nn_adaptive_impedance_cycle(chain, gains, state, targets, centres_q, centres
     C_hat = rbf_network.output(xi_qv, theta_C).reshape((m, m))
     G_hat = rbf_network.output(xi_q, theta_G)
     model_terms = matvec(M_hat, a_eq) + matvec(C_hat, v_eq) + G_hat
-    own_status = sliding_back(gains, state, frame, model_terms, d, f, r_d, v_d, a_d, f_d,
-                              quat_d, w_d, posture, e, s, out)
+    own_status = sliding_back(gains, state, cycle, model_terms, d, out)
     own_status[:] = np.nan   # the true norms: filled on the Python side if wanted
-    own_status[1] = spectral_norm(M_hat)
-    own_status[3] = spectral_norm(C_hat)
-    own_status[5] = math.sqrt(np.sum(G_hat * G_hat))
+    own_status[_M_HAT] = spectral_norm(M_hat)
+    own_status[_C_HAT] = spectral_norm(C_hat)
+    own_status[_G_HAT] = math.sqrt(np.sum(G_hat * G_hat))
 
 
 @njit(cache=True, error_model="numpy")
@@ -217,20 +218,23 @@ class NNAdaptiveImpedanceController(SlidingController):
                                                  Q_a_star=4.0,
                                                  c_max=0.0 if thesis else impedance.C_HAT_MAX))
 
-    def own_status_fields(self) -> list[str]:
-        return list(NN_STATUS_FIELDS)
+    def law_status_fields(self) -> list[str]:
+        """The sliding schemes' fields, then the norms of the true and estimated dynamics."""
+        return super().law_status_fields() + list(NN_STATUS_FIELDS)
 
-    def own_gains_layout(self) -> Layout:
-        return Layout(d=1, Gamma_M=1, Gamma_C=1, Gamma_G=1, inv_variance=1)
+    def law_gains_layout(self) -> Layout:
+        """The sliding schemes' gains, then d and the network's (3.76, 3.79-3.81)."""
+        return super().law_gains_layout().extended(d=1, Gamma_M=1, Gamma_C=1, Gamma_G=1,
+                                                   inv_variance=1)
 
-    def own_gain_values(self) -> dict:
-        return {**self.values, "inv_variance": 1.0 / self.values["rbf_variance"]}
+    def law_gain_values(self) -> dict:
+        return {**super().law_gain_values(), "inv_variance": 1.0 / self.values["rbf_variance"]}
 
-    def own_initial_state(self) -> np.ndarray:
-        """The initial weights [theta_M, theta_C, theta_G]: zero (section 3.5.3), or with
-        ``nn_warm_start`` theta_M and theta_G such that M_r^(q_0) = M_r(q_0) and
-        G_r^(q_0) = G_r(q_0) of the URDF model at q_0 = rbf_seed: theta_i = xi_i(q_0)
-        y / |xi(q_0)|^2 for each output y (the minimum-norm weights)."""
+    def law_initial_state(self) -> np.ndarray:
+        """The sliding schemes' state, then the weights [theta_M, theta_C, theta_G]: zero
+        (section 3.5.3), or with ``nn_warm_start`` theta_M and theta_G such that
+        M_r^(q_0) = M_r(q_0) and G_r^(q_0) = G_r(q_0) of the URDF model at q_0 = rbf_seed:
+        theta_i = xi_i(q_0) y / |xi(q_0)|^2 for each output y (the minimum-norm weights)."""
         m, n_q, n_qv = self.model.m, len(self.centres_q), len(self.centres_qv)
         theta_M, theta_C, theta_G = np.zeros((n_q, m * m)), np.zeros(n_qv * m * m), np.zeros((n_q, m))
         if self.values["nn_warm_start"]:
@@ -241,7 +245,8 @@ class NNAdaptiveImpedanceController(SlidingController):
             xi = rbf_network.activations(self.centres_q, 1.0 / self.values["rbf_variance"], q0)
             share = xi / float(xi @ xi)
             theta_M, theta_G = np.outer(share, M_r.ravel()), np.outer(share, G_r)
-        return np.concatenate([theta_M.ravel(), theta_C, theta_G.ravel()])
+        return np.concatenate([super().law_initial_state(), theta_M.ravel(), theta_C,
+                               theta_G.ravel()])
 
     def __init__(self, values: dict):
         for name in ("rbf_centres_per_dim", "rbf_max_nodes"):
@@ -259,8 +264,7 @@ class NNAdaptiveImpedanceController(SlidingController):
         self._warm_q0 = q_path[0]          # rbf_seed moved onto the desired motion's start
         super().__init__(values)
         self.true_model = task_model(self.values, model_free=False)
-        self._norms_at = (len(self.status_fields) - 1 - len(self._law_fields)
-                          + 2 * self.model.m + 1)
+        self._norms_at = self.status_fields.index("M_r_norm") - 1
 
     def cycle(self, t, dt, q, v, force, vector):
         nn_adaptive_impedance_cycle(self.model.chain, self.gains, self.internal, self.targets,

@@ -46,14 +46,13 @@ UNCERTAINTY_PARAMETERS = [
 @njit(cache=True, error_model="numpy")
 def robust_adaptive_impedance_cycle(chain, gains, state, targets, t, dt, q, v, force, out):
     """One cycle of (3.48) into ``out``."""
-    (frame, f, r_d, v_d, a_d, f_d, quat_d, w_d, posture, e, s, v_eq, a_eq, own,
-     _) = sliding_front(chain, gains, state, targets, t, dt, q, v, force)
+    cycle = sliding_front(chain, gains, state, targets, t, dt, q, v, force)
+    own, v_eq, a_eq = cycle.own_gains, cycle.v_eq, cycle.a_eq
     delta_M, delta_C, delta_G, delta_f = own[0], own[1], own[2], own[3]
     d = (delta_M * math.sqrt(np.sum(a_eq * a_eq)) + delta_C * math.sqrt(np.sum(v_eq * v_eq))
          + delta_G + delta_f)                                                      # 3.51
-    model_terms = model_force(chain, frame, a_eq, v_eq)
-    sliding_back(gains, state, frame, model_terms, d, f, r_d, v_d, a_d, f_d, quat_d, w_d,
-                 posture, e, s, out)
+    model_terms = model_force(chain, cycle.frame, a_eq, v_eq)
+    sliding_back(gains, state, cycle, model_terms, d, out)
 
 
 class RobustAdaptiveImpedanceController(SlidingController):
@@ -84,5 +83,6 @@ class RobustAdaptiveImpedanceController(SlidingController):
                                                  Q_bc_star=1.5,
                                                  c_max=0.0 if thesis else impedance.C_HAT_MAX))
 
-    def own_gains_layout(self) -> Layout:
-        return Layout(delta_M=1, delta_C=1, delta_G=1, delta_f=1)
+    def law_gains_layout(self) -> Layout:
+        """The sliding schemes' gains, then the bounds of (3.51)."""
+        return super().law_gains_layout().extended(delta_M=1, delta_C=1, delta_G=1, delta_f=1)

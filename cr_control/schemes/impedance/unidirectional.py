@@ -15,67 +15,79 @@ the surface, send a target pose."""
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
 from cr_control.core.linalg import tmatvec
-from cr_control.core.packing import Layout
 from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks import unidirectional_impedance as contact
-from cr_control.schemes.blocks.references import TARGETS, guard_gains_of, guard_state_of
+from cr_control.schemes.blocks.references import (
+    TARGETS,
+    DesiredMotion,
+    guard_gains_of,
+    guard_state_of,
+)
 from cr_control.schemes.blocks.task_space import common_blocks, model_force, task_back, task_front
 from cr_control.schemes.impedance.base import TaskSpaceController
 
 _WRENCH_SEQ = TARGETS.offset("wrench_seq")
 
+#: One cycle of a chapter 5 law before its d_m and k_m: the task frame, the measured force f,
+#: the desired motion (its force f_d = f_dm n, or the target wrench's without a pull), the
+#: outward normal n at the tool, the gap, f_m = n^T f, f_dm, e_r = r_d - r and e_r', the
+#: packed contact gains (:func:`contact_gains`) and the scheme's own.
+ContactCycle = namedtuple("ContactCycle", ["frame", "f", "desired", "n", "gap", "f_m", "f_dm",
+                                           "e", "e_dot", "contact", "own"])
+
 
 @njit(cache=True, error_model="numpy")
 def unidirectional_front(chain, gains, state, targets, t, dt, q, v, force):
-    """The common front, then the contact state: (frame, f, r_d, v_d, a_d, quat_d, w_d,
-    posture, n, gap, f_m, f_d, f_dm, e, e', the contact gains, the scheme's own gains)."""
-    frame, f, r_d, v_d, a_d, f_d_ref, quat_d, w_d, posture, ramp = task_front(
-        chain, gains, state, targets, t, dt, q, v, force)
-    m, n_q = r_d.shape[0], q.shape[0]
+    """The common front, then the contact state: the :data:`ContactCycle`."""
+    frame, f, desired = task_front(chain, gains, state, targets, t, dt, q, v, force)
+    m, n_q = f.shape[0], q.shape[0]
     common, law_at = common_blocks(gains)
     law = gains[law_at:]
     size = contact.contact_gains_size(m)
     gains_contact = law[:size]
     n, gap, f_m, f_d, f_dm = contact.contact_state(
-        gains_contact, frame.r, f, f_d_ref, targets[_WRENCH_SEQ] != 0.0,
+        gains_contact, frame.r, f, desired.f, targets[_WRENCH_SEQ] != 0.0,
         guard.contact_ramp(guard_gains_of(common.reference, m, n_q),
-                           guard_state_of(state, m, n_q), ramp, gains_contact[0]))
+                           guard_state_of(state, m, n_q), desired.ramp, gains_contact[0]))
     if f_dm < 0.0:          # a target pulling on the unilateral surface (module docstring)
         f_d = f_d - f_dm * n
         f_dm = 0.0
-    return (frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n, gap, f_m, f_d, f_dm,
-            r_d - frame.r, v_d - frame.r_dot, gains_contact, law[size:])
+    desired = DesiredMotion(desired.r, desired.v, desired.a, f_d, desired.quat, desired.w,
+                            desired.posture, desired.ramp)
+    return ContactCycle(frame, f, desired, n, gap, f_m, f_dm, desired.r - frame.r,
+                        desired.v - frame.r_dot, gains_contact, law[size:])
 
 
 @njit(cache=True, error_model="numpy")
-def unidirectional_back(chain, gains, state, frame, f, r_d, v_d, a_d, quat_d, w_d, posture, n,
-                        gap, f_m, f_d, e, e_dot, gains_contact, d_m, k_m, lam, out):
-    """tau of (5.7) with d_m, k_m (scaled by the contact-stability monitor); the output
-    vector and the contact status (s with lambda)."""
-    k_s, d_s = guard.scales(guard_state_of(state, e.shape[0], frame.q.shape[0]), e.shape[0])
+def unidirectional_back(chain, gains, state, cycle, d_m, k_m, lam, out):
+    """tau of (5.7) for the :data:`ContactCycle` ``cycle`` with d_m, k_m (scaled by the
+    contact-stability monitor) into ``out``, with the contact status (s with lambda)."""
+    c, m = cycle, cycle.e.shape[0]
+    k_s, d_s = guard.scales(guard_state_of(state, m, c.frame.q.shape[0]), m)
     d_m, k_m = d_s * d_m, k_s * k_m
-    u = contact.impedance_acceleration(gains_contact, a_d, e, e_dot, f, f_d, d_m, k_m, n)
-    tau = tmatvec(frame.J, model_force(chain, frame, u, frame.r_dot) - f)
-    extras = task_back(gains, state, frame, tau, quat_d, w_d, posture, r_d, v_d, a_d, f_d, f, e, out)
-    s = contact.normal_sliding(n, e, e_dot, lam)
-    contact.write_contact_status(extras, f_m, gap, n, s, d_m, k_m)
+    u = contact.impedance_acceleration(c.contact, c.desired.a, c.e, c.e_dot, c.f, c.desired.f,
+                                       d_m, k_m, c.n)
+    tau = tmatvec(c.frame.J, model_force(chain, c.frame, u, c.frame.r_dot) - c.f)
+    extras = task_back(gains, state, c.frame, tau, c.desired, c.f, c.e, out)
+    s = contact.normal_sliding(c.n, c.e, c.e_dot, lam)
+    contact.write_contact_status(extras, c.f_m, c.gap, c.n, s, d_m, k_m)
 
 
 class UnidirectionalController(TaskSpaceController):
-    """The chapter 5 schemes on any URDF arm; subclasses add their own gains (``OWN``:
-    parameter name -> packed size 1) and kernel."""
+    """The chapter 5 schemes on any URDF arm: the contact's parameters, gains and status
+    fields; schemes extend the hooks with their own parameters and gains, and give the
+    kernel."""
 
     HAS_DESIRED_FORCE = False
     ROBOT_DEFAULTS = {"urdf_file": ("two_link_arm_ch5.urdf", "URDF file: a path, a file of "
                                     "cr_control's config directory, or package://PKG/path. "
                                     "Default: the chapter 5 arm (0.6 m links, section 5.3).")}
-    OWN: tuple[str, ...] = ()
-
     @classmethod
     def reference_defaults(cls) -> dict:
         """The desired motion of section 5.3 (5.21-5.22) on the circle."""
@@ -84,18 +96,13 @@ class UnidirectionalController(TaskSpaceController):
 
     @classmethod
     def law_parameters(cls, model, thesis):
-        return contact.contact_parameters(model.m, thesis) + cls.own_parameters()
-
-    @classmethod
-    def own_parameters(cls):
-        return []
+        return contact.contact_parameters(model.m, thesis)
 
     def law_status_fields(self):
         return contact.contact_status_fields(self.model.position_axes)
 
     def law_gains_layout(self):
-        m = self.model.m
-        return Layout(**contact.contact_gains(m).shapes, **dict.fromkeys(self.OWN, 1))
+        return contact.contact_gains(self.model.m)
 
     def law_gain_values(self):
         return contact.contact_gain_values(self.values)
