@@ -10,6 +10,9 @@ import pytest
 from numba import njit
 
 from cr_control.core.packing import take, views_layout
+from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
+from cr_control.offline import run_scheme
+from cr_control.schemes.blocks import backstepping as bs
 from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks import impedance_adaptation as impedance
 from cr_control.schemes.blocks.references import (
@@ -25,6 +28,7 @@ from cr_control.schemes.blocks.task_space import (
     common_gains_layout,
     law_blocks,
 )
+from cr_control.schemes.force.backstepping_force import RESULT, STATE, STATUS_EXTRA
 from cr_control.schemes.impedance.nn_adaptive_impedance import NN_STATUS_FIELDS
 from cr_control.schemes.impedance.sliding import _sizes as sliding_sizes
 from cr_control.schemes.registry import make_controller
@@ -111,7 +115,33 @@ def test_sliding_blocks_are_the_layouts_sizes(m):
     """The sliding schemes' kernels split the law's gains and state with these sizes."""
     assert sliding_sizes(m) == (impedance.gains_layout(m).size, sliding_gains(m).size,
                                 impedance.state_layout(m).size)
-#: Each scheme's own packed gains, after its family's: (name, value from the parameters).
+
+
+def test_backstepping_blocks_and_status_by_name():
+    """The design's state and results (4.13-4.56) by name: sizes as the design has them,
+    and a run's status reports the named blocks every cycle."""
+    sizes = bs.Sizes(5, 2)
+    assert RESULT.size == sizes.outputs
+    assert STATE.size == bs.state_size(sizes) == 2 * sizes.n + 2 * sizes.p + 4
+    assert (STATE.offset("theta_hat"), STATE.offset("rho_hat"), STATE.offset("u_prev")) == (
+        10, 19, 21)
+    assert (RESULT.offset("z"), RESULT.offset("gamma_2")) == (11, 13)
+    run = run_scheme("backstepping_force", 0.2, {"f_d": 1.5})
+    controller = make_controller("backstepping_force", {"f_d": 1.5})
+    assert controller.status_fields[-len(STATUS_EXTRA):] == STATUS_EXTRA
+    assert np.all(run.column("f_d_x") == 1.5)
+    assert np.array_equal(run.column("tau_1"), run.command[:, 0])
+    assert np.array_equal(run.column("r_x"), run.position[:, 0])
+    assert np.array_equal(run.column("f_err_x"), 1.5 - run.force[:, 0])
+    assert run.column("b3_hat")[0] == pytest.approx(0.65 * 20.0)      # theta_hat(0), printed
+    assert run.column("d_hat")[0] == pytest.approx(0.65 * 0.05)
+    assert np.ptp(run.column("z_1")) > 0.0 and np.ptp(run.column("a0_hat")) > 0.0
+    # where force_cycle wrote them by number before: reference[6], status[10]
+    assert REFERENCE_FIELDS.index("f_d_x") - 1 == 6 and STATUS_FIELDS.index("tau_1") - 1 == 10
+
+
+#: Each scheme's own packed gains (its parameters but inv_variance = 1/rbf_variance), after
+#: its family's.
 OWN_GAINS = {
     "impedance": ["d_m", "k_m"],
     "fuzzy_unidirectional": ["lambda", "k_p", "k_n", "d_s", "d_med", "d_b", "f_max", "f_min"],

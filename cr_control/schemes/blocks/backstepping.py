@@ -54,6 +54,8 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from cr_control.core.packing import Layout
+
 # ----------------------------------------------------------------------------------------
 # Expression graph with hash-consing and reverse-mode symbolic differentiation
 
@@ -416,9 +418,23 @@ def tape_for(sizes: Sizes) -> Tape:
 # Internal state and one control cycle
 
 
+def state_layout(sizes: Sizes) -> Layout:
+    """The internal state's blocks: the K-filters eta and lam (4.13-4.22), the estimates
+    theta_hat and rho_hat, the previous cycle's y and u, and the estimates' derivatives."""
+    n, p = sizes.n, sizes.p
+    return Layout(eta=n, lam=n, theta_hat=p, rho_hat=1, y_prev=1, u_prev=1, theta_hat_dot=p,
+                  rho_hat_dot=1)
+
+
+def result_layout(sizes: Sizes) -> Layout:
+    """The blocks of a cycle's results ``res`` (Sizes.outputs values): the control u, the
+    tuning function tau_rho, alpha_bar_1, the errors z and gamma_2."""
+    return Layout(u=1, tau=sizes.p, alpha_bar_1=1, z=sizes.rho, gamma_2=1)
+
+
 def state_size(sizes: Sizes) -> int:
-    """eta (n), lam (n), theta_hat (p), rho_hat, y_prev, u_prev, theta_hat' (p), rho_hat'."""
-    return 2 * sizes.n + 2 * sizes.p + 4
+    """The internal state's size (:func:`state_layout`)."""
+    return state_layout(sizes).size
 
 
 def initial_state(sizes: Sizes, theta_hat_0, rho_hat_0: float) -> np.ndarray:

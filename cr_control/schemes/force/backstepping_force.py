@@ -23,11 +23,15 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.parameters import Bound, Param
+from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 from cr_control.schemes.blocks import backstepping as bs
 from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
 
 SIZES = bs.Sizes(5, 2)
-N, P = SIZES.n, SIZES.p
+N, RHO, P = SIZES.n, SIZES.rho, SIZES.p
+#: The internal state's and a cycle's results' blocks (:func:`backstepping.state_layout`,
+#: :func:`backstepping.result_layout`).
+STATE, RESULT = bs.state_layout(SIZES), bs.result_layout(SIZES)
 
 #: The nominal theta printed in section 4.3 (matches the true one only in b and a_4).
 PRINTED_NOMINAL_THETA = [20.0, 200.3, 8.0, 40.0, 20.04, 21.52, 27.01, 0.9, 8.0]
@@ -74,6 +78,22 @@ PARAMETERS = [
 STATUS_EXTRA = ["z_1", "z_2", *[f"{x}_hat" for x in THETA_NAMES], "d_hat", "gamma_2"]
 
 
+def field_at(fields: list[str], name: str) -> int:
+    """Where field ``name`` of ``fields`` (a topic's, the stamp first) is in the published
+    vector, which has no stamp."""
+    return fields.index(name) - 1
+
+
+# where force_cycle reads and writes (numba takes these module constants as literals)
+_THETA, _D_HAT, _U_PREV = (STATE.offset(name) for name in ("theta_hat", "rho_hat", "u_prev"))
+_U, _Z, _GAMMA_2 = RESULT.offset("u"), RESULT.offset("z"), RESULT.offset("gamma_2")
+_F_D = field_at(REFERENCE_FIELDS, "f_d_x")
+_R, _V, _F, _F_ERR, _TAU = (field_at(STATUS_FIELDS, name) for name in (
+    "r_x", "v_x", "f_x", "f_err_x", "tau_1"))
+_X_Z, _X_THETA, _X_D_HAT, _X_GAMMA_2 = (STATUS_EXTRA.index(name) for name in (
+    "z_1", "b3_hat", "d_hat", "gamma_2"))
+
+
 def check_hurwitz(lam) -> None:
     if not np.all(np.real(np.linalg.eigvals(bs.a0_matrix(lam))) < 0):
         from cr_control.core.parameters import ParameterError
@@ -93,22 +113,21 @@ def force_cycle(op, a, b, value, outputs, inp, vals, work, state, res, q, v, for
                 extras_at):
     """One cycle of (4.56) into ``out`` (command delta_c, reference, status)."""
     f = force[0]
-    bs.backstepping_cycle(op, a, b, value, outputs, 5, 2, 9, inp, vals, work, state, f, f_d, dt,
-                          res)
+    bs.backstepping_cycle(op, a, b, value, outputs, N, RHO, P, inp, vals, work, state, f, f_d,
+                          dt, res)
     command, reference, status = split_output(out, 1)
-    command[0] = res[0]
+    command[0] = res[_U]
     reference[:] = 0.0
-    reference[6] = f_d
+    reference[_F_D] = f_d
     status[:] = 0.0
-    status[0], status[2], status[4] = q[0], v[0], f
-    status[8] = f_d - f
-    status[10] = res[0]
-    status[extras_at] = res[11]                  # z_1
-    status[extras_at + 1] = res[12]              # z_2
-    for j in range(9):
-        status[extras_at + 2 + j] = state[10 + j]
-    status[extras_at + 11] = state[19]           # d_hat
-    status[extras_at + 12] = res[13]             # gamma_2
+    status[_R], status[_V], status[_F] = q[0], v[0], f
+    status[_F_ERR] = f_d - f
+    status[_TAU] = res[_U]
+    extras = status[extras_at:]
+    extras[_X_Z:_X_Z + RHO] = res[_Z:_Z + RHO]
+    extras[_X_THETA:_X_THETA + P] = state[_THETA:_THETA + P]
+    extras[_X_D_HAT] = state[_D_HAT]
+    extras[_X_GAMMA_2] = res[_GAMMA_2]
 
 
 class BacksteppingForceController(Controller):
@@ -140,8 +159,8 @@ class BacksteppingForceController(Controller):
             self._started = True
             if self.values["bumpless_start"]:
                 eta, lam = steady_filters(self.values["lambda"], float(force[0]), float(q[0]), N)
-                self.internal[:N], self.internal[N:2 * N] = eta, lam
-                self.internal[2 * N + P + 2] = q[0]            # u_prev: delta_c held = delta
+                STATE.view(self.internal, "eta")[:], STATE.view(self.internal, "lam")[:] = eta, lam
+                self.internal[_U_PREV] = q[0]                  # delta_c held = delta
         out = self._output.new()
         d, t_ = self.design, self.design.tape
         force_cycle(t_.op, t_.a, t_.b, t_.value, t_.outputs, d.inp, d.vals, d.work, self.internal,
