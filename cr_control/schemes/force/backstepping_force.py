@@ -123,11 +123,12 @@ def force_cycle(op, a, b, value, outputs, inp, vals, work, state, res, q, v, for
     status[_R], status[_V], status[_F] = q[0], v[0], f
     status[_F_ERR] = f_d - f
     status[_TAU] = res[_U]
-    extras = status[extras_at:]
-    extras[_X_Z:_X_Z + RHO] = res[_Z:_Z + RHO]
-    extras[_X_THETA:_X_THETA + P] = state[_THETA:_THETA + P]
-    extras[_X_D_HAT] = state[_D_HAT]
-    extras[_X_GAMMA_2] = res[_GAMMA_2]
+    for j in range(RHO):
+        status[extras_at + _X_Z + j] = res[_Z + j]
+    for j in range(P):
+        status[extras_at + _X_THETA + j] = state[_THETA + j]
+    status[extras_at + _X_D_HAT] = state[_D_HAT]
+    status[extras_at + _X_GAMMA_2] = res[_GAMMA_2]
 
 
 class BacksteppingForceController(Controller):
