@@ -28,6 +28,7 @@ from cr_control.schemes.blocks.task_space import (
     common_gains_layout,
     law_blocks,
 )
+from cr_control.schemes.force import mrac_force as mrac
 from cr_control.schemes.force.backstepping_force import RESULT, STATE, STATUS_EXTRA
 from cr_control.schemes.impedance.nn_adaptive_impedance import NN_STATUS_FIELDS
 from cr_control.schemes.impedance.sliding import _sizes as sliding_sizes
@@ -169,3 +170,21 @@ def test_a_law_declares_itself_through_one_set_of_hooks(scheme):
     own_status = {"nn_adaptive_impedance": NN_STATUS_FIELDS}.get(scheme, [])
     if own_status:                                   # after the family's fields
         assert controller.status_fields[-len(own_status):] == own_status
+
+
+def test_mrac_blocks_and_status_by_name():
+    """The MRAC law's (4.72, 4.76-4.77) state and gains as Layouts, where its kernel read
+    them by number before, and a run's status by name."""
+    assert [mrac.STATE.offset(name) for name in mrac.STATE.shapes] == [
+        0, 6, 12, 18, 20, 34, 35, 36, 37, 51, 52]
+    assert [mrac.GAINS.offset(name) for name in mrac.GAINS.shapes] == [
+        0, 6, 7, 8, 12, 13, 14, 15]
+    assert (mrac.STATE_SIZE, mrac.GAINS_SIZE) == (53, 16)
+    run = run_scheme("mrac_force", 0.2, {"f_d": 1.5})
+    assert np.all(run.column("f_d_x") == 1.5)
+    assert np.array_equal(run.column("tau_1"), run.command[:, 0])
+    assert np.array_equal(run.column("f_err_x"), 1.5 - run.force[:, 0])
+    controller = make_controller("mrac_force", {"f_d": 1.5})
+    assert run.column("b3_hat")[0] == controller.values["b3_hat_0"]
+    assert np.array_equal([run.column(f"{x}_hat")[0] for x in mrac.THETA_F_NAMES],
+                          controller.values["theta_f_hat_0"])

@@ -194,6 +194,12 @@ def accept_cycle(n, max_effort, limits, internal, good, command, status, command
 N_REFERENCE = len(REFERENCE_FIELDS) - 1
 
 
+def field_at(fields: list[str], name: str) -> int:
+    """Where field ``name`` of ``fields`` (a topic's, the stamp first) is in the published
+    vector, which has no stamp."""
+    return fields.index(name) - 1
+
+
 @njit(cache=True, error_model="numpy")
 def split_output(out, n):
     """(command, reference, status) views of a 2-D scheme's output vector

@@ -25,7 +25,13 @@ from numba import njit
 from cr_control.core.parameters import Bound, Param
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 from cr_control.schemes.blocks import backstepping as bs
-from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
+from cr_control.schemes.controller import (
+    Controller,
+    ControlOutput,
+    KernelOutput,
+    field_at,
+    split_output,
+)
 
 SIZES = bs.Sizes(5, 2)
 N, RHO, P = SIZES.n, SIZES.rho, SIZES.p
@@ -76,12 +82,6 @@ PARAMETERS = [
 ]
 
 STATUS_EXTRA = ["z_1", "z_2", *[f"{x}_hat" for x in THETA_NAMES], "d_hat", "gamma_2"]
-
-
-def field_at(fields: list[str], name: str) -> int:
-    """Where field ``name`` of ``fields`` (a topic's, the stamp first) is in the published
-    vector, which has no stamp."""
-    return fields.index(name) - 1
 
 
 # where force_cycle reads and writes (numba takes these module constants as literals)

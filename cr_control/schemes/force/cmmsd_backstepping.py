@@ -25,8 +25,18 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.parameters import Bound, Param, ParameterError
+from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 from cr_control.schemes.blocks import backstepping as bs
-from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
+from cr_control.schemes.controller import (
+    Controller,
+    ControlOutput,
+    KernelOutput,
+    field_at,
+    split_output,
+)
+
+_R_D, _R, _E = (field_at(REFERENCE_FIELDS, "r_d_x"), field_at(STATUS_FIELDS, "r_x"),
+                field_at(STATUS_FIELDS, "e_x"))
 
 _JOINTS = Param("joint_names", ["q1", "q2"], "The chain's joints q1..qN in order (N = their "
                 "number); only q1 is read, the force goes to the last.", "string_list",
@@ -70,10 +80,10 @@ def cmmsd_cycle(op, a, b, value, outputs, n, p, inp, vals, work, state, res, q1,
     command[:] = 0.0
     command[n_joints - 1] = res[0]
     reference[:] = 0.0
-    reference[0] = q_d
+    reference[_R_D] = q_d
     status[:] = 0.0
-    status[0] = q1
-    status[6] = q_d - q1
+    status[_R] = q1
+    status[_E] = q_d - q1
     status[extras_at] = res[0]
     status[extras_at + 1] = state[2 * n + p]            # d_hat
     s = 0.0

@@ -31,9 +31,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cr_control.core.packing import Layout
 from cr_control.core.parameters import Bound, Param
+from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 from cr_control.schemes.blocks import diophantine
-from cr_control.schemes.controller import Controller, ControlOutput, KernelOutput, split_output
+from cr_control.schemes.controller import (
+    Controller,
+    ControlOutput,
+    KernelOutput,
+    field_at,
+    split_output,
+)
 from cr_control.schemes.force.backstepping_force import _JOINTS, TRUE_THETA
 
 #: True theta_f (4.69) of case 1 for the section 4.3 design (the corrected solution).
@@ -66,13 +74,26 @@ PARAMETERS = [
 
 STATUS_EXTRA = ["f_m", "e", "eps_p", "b3_hat", *[f"{x}_hat" for x in THETA_F_NAMES]]
 
-# internal state layout
+#: The internal state: the filters x / P_f of f_d, f and delta_c (6 each), the filtered
+#: force f_m and its rate, theta_f_hat and b3_hat, the previous delta_c and f, the estimates'
+#: rates, started (0/1).
+STATE = Layout(w_d=6, w_f=6, w_r=6, f_m=2, theta_f_hat=14, b3_hat=1, u_prev=1, f_prev=1,
+               theta_f_hat_dot=14, b3_hat_dot=1, started=1)
 _WD, _WF, _WR, _FM, _TH, _B3, _UPREV, _FPREV, _THD, _B3D, _STARTED = (
-    0, 6, 12, 18, 20, 34, 35, 36, 37, 51, 52)
-STATE_SIZE = 53
-# packed gains
-_PF, _ZW2, _W2, _O, _GF, _FD, _BUMP, _NORM = 0, 6, 7, 8, 12, 13, 14, 15
-GAINS_SIZE = 16
+    STATE.offset(name) for name in STATE.shapes)
+STATE_SIZE = STATE.size
+#: The packed gains: P_f's coefficients below the leading 1 (lowest first), A_m's
+#: 2 zeta omega and omega^2, the observer polynomial, gamma_f, f_d, bumpless_start,
+#: normalised_gradient.
+GAINS = Layout(P_f=6, two_zeta_omega=1, omega_2=1, observer=4, gamma_f=1, f_d=1, bumpless=1,
+               normalised=1)
+_PF, _ZW2, _W2, _O, _GF, _FD, _BUMP, _NORM = (GAINS.offset(name) for name in GAINS.shapes)
+GAINS_SIZE = GAINS.size
+_F_D = field_at(REFERENCE_FIELDS, "f_d_x")
+_R, _V, _F, _F_ERR, _TAU = (field_at(STATUS_FIELDS, name) for name in (
+    "r_x", "v_x", "f_x", "f_err_x", "tau_1"))
+_X_FM, _X_E, _X_EPS, _X_B3, _X_THETA = (STATUS_EXTRA.index(name) for name in (
+    "f_m", "e", "eps_p", "b3_hat", f"{THETA_F_NAMES[0]}_hat"))
 
 
 @njit(cache=True)
@@ -180,15 +201,16 @@ def mrac_cycle(g, state, q, v, force, dt, work, phi, p1phi, out, extras_at):
     command, reference, status = split_output(out, 1)
     command[0] = delta_c
     reference[:] = 0.0
-    reference[6] = fd
+    reference[_F_D] = fd
     status[:] = 0.0
-    status[0], status[2], status[4] = q[0], v[0], f
-    status[8] = fd - f
-    status[10] = delta_c
-    status[extras_at], status[extras_at + 1], status[extras_at + 2] = state[_FM], e, eps
-    status[extras_at + 3] = state[_B3]
+    status[_R], status[_V], status[_F] = q[0], v[0], f
+    status[_F_ERR] = fd - f
+    status[_TAU] = delta_c
+    status[extras_at + _X_FM], status[extras_at + _X_E] = state[_FM], e
+    status[extras_at + _X_EPS] = eps
+    status[extras_at + _X_B3] = state[_B3]
     for j in range(14):
-        status[extras_at + 4 + j] = th[j]
+        status[extras_at + _X_THETA + j] = th[j]
 
 
 class MRACForceController(Controller):
