@@ -40,6 +40,7 @@ class Listener:
 
     def __init__(self, domain_id: int, pids: Callable[[], dict[str, int]],
                  status_topic: str | None = None):
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         import rclpy
         from rclpy.context import Context
         from rclpy.experimental import EventsExecutor
@@ -101,6 +102,7 @@ class Listener:
     def _on_status(self, buf: bytes) -> None:
         self.status_received += 1
         if self._offsets is None or not self._status_raw_ok:
+            # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
             from rclpy.serialization import deserialize_message
 
             msg = deserialize_message(buf, self._msg_cls)

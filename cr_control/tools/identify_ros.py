@@ -36,6 +36,7 @@ class RobotPoses:
     """A ROS client that runs the poses on the controller node ``controller``."""
 
     def __init__(self, controller: str, timeout_s: float):
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
 
@@ -50,6 +51,7 @@ class RobotPoses:
         self.wrench: tuple[str, np.ndarray] | None = None
 
     def close(self) -> None:
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         import rclpy
 
         self.executor.shutdown()
@@ -58,6 +60,7 @@ class RobotPoses:
 
     def parameters(self, names: list[str]) -> dict:
         """The controller's values of ``names`` (TimeoutError if it does not answer)."""
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         from rcl_interfaces.srv import GetParameters
         from rclpy.parameter import parameter_value_to_python
 
@@ -79,6 +82,7 @@ class RobotPoses:
     def run(self, chain_model, sensor_frame: str, gravity: np.ndarray, poses, settle: float,
             average: float) -> tuple[np.ndarray, np.ndarray]:
         """(g_i in S, mean wrench in S) per pose; ``poses(start_pose)`` gives the targets."""
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         from geometry_msgs.msg import PoseStamped, WrenchStamped
         from sensor_msgs.msg import JointState
 

@@ -54,6 +54,7 @@ class Lifecycle:
     """A client of the lifecycle services of nodes on this process's ROS domain."""
 
     def __init__(self, timeout_s: float):
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
 
@@ -65,6 +66,7 @@ class Lifecycle:
         self._clients: dict[str, object] = {}
 
     def close(self) -> None:
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         import rclpy
 
         self.executor.shutdown()
@@ -84,6 +86,7 @@ class Lifecycle:
 
     def prepare(self, *targets: str) -> None:
         """Make and match the change_state clients of ``targets`` now, before they are needed."""
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         from lifecycle_msgs.srv import ChangeState
 
         for target in targets:
@@ -92,12 +95,14 @@ class Lifecycle:
 
     def state(self, target: str) -> str:
         """The node's current state label (unconfigured, inactive, active, finalized)."""
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         from lifecycle_msgs.srv import GetState
 
         return self._call(GetState, f"{target}/get_state", GetState.Request()).current_state.label
 
     def change(self, target: str, transition: str) -> None:
         """Make ``transition``; TransitionRefusedError if the node refuses it."""
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         from lifecycle_msgs.msg import Transition
         from lifecycle_msgs.srv import ChangeState
 
@@ -108,6 +113,7 @@ class Lifecycle:
     def wait_for_time(self, at_s: float) -> float:
         """Block until a /joint_states stamp is ``at_s`` after the first one seen; that
         stamp's offset (s)."""
+        # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         from sensor_msgs.msg import JointState
 
         # lazy: loaded when the command runs (cr_control.tools)

@@ -38,6 +38,7 @@ def full_node_name(text: str) -> str:
     """The absolute name (``/ns/name``) of the node ``text`` names, as ``ros2 param`` reads
     it (a leading ``/`` is added if missing); ValueError saying why if ROS would not take it
     (empty, a space, ``//``, a trailing ``/``, a leading digit, non-ASCII, too long, ...)."""
+    # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
     from rclpy.exceptions import NameValidationException
     from rclpy.validate_full_topic_name import validate_full_topic_name
     from rclpy.validate_namespace import validate_namespace
@@ -120,6 +121,7 @@ def _parse_value(text: str):
 
 def run(args: argparse.Namespace) -> int:
     """Carry out one list/get/set command; print the outcome; exit code."""
+    # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
     import rclpy
     from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
     from rclpy.executors import SingleThreadedExecutor
