@@ -1,5 +1,6 @@
-"""Hostile inputs to the task-space schemes, offline (no ROS, no plant reflex: the offline
-loop has none, so these show the laws stay safe on their own). "Before": the same runs on
+"""Hostile inputs to the task-space schemes, offline (no ROS; the runs that press at or
+beyond the plant's 50 N force reflex run without the plant's supervision, ``supervise=False``,
+so these show the laws stay safe on their own). "Before": the same runs on
 the code before these bounds (commit c6e704e, its robot profiles).
 
 1. ``~/zero_ft`` cannot be walked: called every 0.2 s while pressing, the bias stays and the
@@ -220,7 +221,7 @@ def run_sequence(scheme: str, name: str, robot: str = "panda_ft"):
             asked.append(abs(f))
 
     final, last_change = SEQUENCES[name]
-    run = offline.run(c, p, last_change + SETTLE_S + 0.5, period, hook)
+    run = offline.run(c, p, last_change + SETTLE_S + 0.5, period, hook, supervise=False)
     return run, max(asked), final, last_change
 
 
@@ -333,7 +334,7 @@ def test_a_target_pose_10_m_away_takes_the_tip_at_most_to_the_reach(scheme):
         if k >= 2000 and k % 100 == 0:
             controller.set_target_pose(np.array([0.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0, 0.0]))
 
-    run = offline.run(c, p, 7.0, 1e-3, hook)
+    run = offline.run(c, p, 7.0, 1e-3, hook, supervise=False)
     r = np.column_stack([run.column(f"r_{a}") for a in "xyz"])
     v = np.column_stack([run.column(f"v_{a}") for a in "xyz"])
     reference_speed = np.linalg.norm(np.column_stack([run.column(f"v_d_{a}") for a in "xyz"]),
@@ -360,7 +361,7 @@ def test_a_1e6_n_target_wrench_is_scaled_to_max_target_force(scheme):
         if k >= 3000 and k % 100 == 0:
             controller.set_target_wrench(np.array([0.0, 0.0, 1e6]))
 
-    run = offline.run(c, p, 6.0, 1e-3, hook)
+    run = offline.run(c, p, 6.0, 1e-3, hook, supervise=False)
     assert c.values["max_target_force"] == LIMIT
     assert run.column("f_d_z").max() <= LIMIT
     assert run.true_force[:, 2].max() <= 1.5 * LIMIT

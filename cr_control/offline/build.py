@@ -45,13 +45,15 @@ def build_scheme(scheme: str, controller_overrides: dict[str, Any] | None = None
 def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any] | None = None,
                plant_overrides: dict[str, Any] | None = None, period: float | None = None,
                robot: str | None = None,
-               hook: Callable[[int, float, Controller, Plant], None] | None = None) -> OfflineRun:
+               hook: Callable[[int, float, Controller, Plant], None] | None = None,
+               supervise: bool = True) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
     on ``robot``'s wiping task (see :func:`build_scheme`); ``period`` (s) defaults to 1 ms,
-    on a robot to its driver's rate (the plant's ``rate_hz``: 2 ms for a UR)."""
+    on a robot to its driver's rate (the plant's ``rate_hz``: 2 ms for a UR); ``supervise``
+    False: without the plant's reflexes (:func:`run`)."""
     controller, plant = build_scheme(scheme, controller_overrides, plant_overrides, robot)
     return run(controller, plant, duration, robot_period(robot) if period is None else period,
-               hook)
+               hook, supervise)
 
 
 def robot_period(robot: str | None) -> float:
