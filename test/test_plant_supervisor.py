@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from plant_harness import Log
 
 from cr_control import offline
 from cr_control.experiments import evaluate
@@ -31,25 +32,6 @@ PERIOD = 1e-3
 NAMES = ("joint1", "joint2")
 A, B = b"A" * 16, b"B" * 16
 DEFAULTS = {p.name: p.default for p in NODE_PARAMETERS}
-
-
-class Log:
-    """A logger keeping every line by level."""
-
-    def __init__(self):
-        self.lines: list[tuple[str, str]] = []
-
-    def info(self, message, **_):
-        self.lines.append(("info", message))
-
-    def warn(self, message, **_):
-        self.lines.append(("warn", message))
-
-    def error(self, message, **_):
-        self.lines.append(("error", message))
-
-    def count(self, text: str) -> int:
-        return sum(text in message for _, message in self.lines)
 
 
 class Command:
