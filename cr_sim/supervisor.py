@@ -32,6 +32,11 @@ time. Modelled on libfranka's rules for a robot's control connection.
   within :data:`FIRST_COMMAND_TIMEOUT_S` of the start; in lockstep, a safe stop with no
   command for ``idle_s`` (the controller stopped commanding: nothing would ever step the
   plant again).
+
+It lives in ``cr_sim``, beside the plants it watches and brakes (it reads their reflex
+quantities and brake commands, and no control law); what both nodes share, the one-source
+rule and the rate-limited log, is in :mod:`cr_control.supervision` and
+:mod:`cr_control.core.rate_limited_log`, below it.
 """
 
 from __future__ import annotations
