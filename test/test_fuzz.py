@@ -72,6 +72,9 @@ def test_the_round_two_session_cases_run_on_the_robot_after_its_baseline():
         "robot_baseline", "target_10_m", "target_1e300_m", "target_quaternion_1e200",
         "target_nan", "wrench_target_1e6", "wrench_pull_away", "zeroing_walk", "silent_intruder"}
     assert fuzz.SUITES["robot"] == ("robot_baseline", "panda_ft")
+    assert {case.name for case in robot if not case.speed_judged} == {
+        "target_10_m", "target_1e300_m", "target_quaternion_1e200", "wrench_pull_away",
+        "zeroing_walk"}
     assert {case.name for case in robot if case.force_judged} == {
         "target_nan", "wrench_pull_away", "zeroing_walk"}
     assert [case.name for case in robot if case.prepare is not None] == ["silent_intruder"]

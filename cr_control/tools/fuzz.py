@@ -370,10 +370,10 @@ CASES = [
          lambda x: x.target_wrench([(1e6, 2.0)]), suite="robot"),
     Case("wrench_pull_away", "a wrench target of -10 N (pull away) 2 s, then +10 N 2 s",
          lambda x: x.target_wrench([(-10.0, 2.0), (10.0, 2.0)]), suite="robot",
-         force_judged=True, extra_s=2.0),
+         speed_judged=False, force_judged=True, extra_s=2.0),
     Case("zeroing_walk", "the wiping stopped (reference_amplitude 0), then ~/zero_ft 15 times, "
-         "every 0.2 s, while pressing", lambda x: x.zero_ft(), suite="robot", force_judged=True,
-         extra_s=2.0),
+         "every 0.2 s, while pressing", lambda x: x.zero_ft(), suite="robot", speed_judged=False,
+         force_judged=True, extra_s=2.0),
     Case("silent_intruder", "a node with a silent /joint_states and a /joint_commands "
          "publisher before the session starts, then 1e308 N m commands for 1 s",
          lambda x: x.commands(lambda i: 1e308, 1000), suite="robot",
