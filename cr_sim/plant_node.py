@@ -70,7 +70,8 @@ from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.raw_messages import JointStateReader
 from cr_control.nodes.ros_parameters import declare, police_changes
 from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
-from cr_control.supervision.single_source import full_node_name
+from cr_control.supervision.plant_commander import COMMANDER_PARAMETER
+from cr_control.supervision.single_source import expected_names, full_node_name
 from cr_sim.loop_stats import SAFE_STOP_REASONS, LoopStats
 from cr_sim.plant_markers import PlantMarkers
 from cr_sim.plant_messages import PlantMessages
@@ -108,8 +109,10 @@ class PlantNode(Node):
         self.settings = declare(self, NODE_PARAMETERS)
         check_settings(self.settings)
         values = declare(self, specs)
+        commander = declare(self, [COMMANDER_PARAMETER])["commander"]
         self.plant = factory(values)
-        police_changes(self, [SCENARIO_PARAMETER, *NODE_PARAMETERS, *specs], self._on_parameter)
+        police_changes(self, [SCENARIO_PARAMETER, *NODE_PARAMETERS, COMMANDER_PARAMETER, *specs],
+                       self._on_parameter)
         self.period = 1.0 / self.settings["rate_hz"]
         self.plant.brake_frequency = self.settings["brake_frequency"]
         self.lockstep = self.settings["mode"] == "lockstep"
@@ -139,6 +142,7 @@ class PlantNode(Node):
             handover_cycles=self.settings["command_handover_cycles"],
             idle_s=IDLE_RESENDS * self.settings["lockstep_resend_s"], scenario=self.scenario,
             command=initial_command(self.plant), stats=self.stats,
+            commanders=expected_names(commander),
             logger=lambda: self.get_logger(), name_of=self._publisher_node,
             on_safe_stop=lambda reason: self.diagnostics.safe_stop(reason))
         self.watchdog = self.supervisor.watchdog
@@ -272,10 +276,13 @@ class PlantNode(Node):
             self._publish_state(*divmod(int(round(self.plant.time * 1e9)), 1_000_000_000))
 
     def _commander_listens(self) -> bool:
-        """Some node that publishes on the command topic subscribes to the state topic."""
+        """An expected commander (parameter ``commander``) publishes on the command topic and
+        subscribes to the state topic: a node that merely sends commands never starts it."""
         def nodes(infos) -> set[tuple[str, str]]:
             return {(info.node_namespace, info.node_name) for info in infos}
-        commanders = nodes(self.get_publishers_info_by_topic(self.command_sub.topic_name))
+        allows = self.supervisor.guard.allows          # only an expected commander starts it
+        commanders = {node for node in nodes(self.get_publishers_info_by_topic(
+            self.command_sub.topic_name)) if allows(full_node_name(*node))}
         return bool(commanders & nodes(self.get_subscriptions_info_by_topic(self.state_pub.topic_name)))
 
     def _finish(self) -> None:

@@ -42,7 +42,7 @@ rule and the rate-limited log, is in :mod:`cr_control.supervision` and
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -129,6 +129,7 @@ class PlantSupervisor:
     def __init__(self, plant: Plant, period: float, limiter: CommandLimiter | None = None, *,
                  lockstep: bool = True, watchdog_missed_cycles: int = 100,
                  watchdog_reaction: str = "safe_stop", handover_cycles: int = 50,
+                 commanders: Iterable[str] = (),
                  idle_s: float = math.inf, scenario: str = "", command: np.ndarray | None = None,
                  stats: LoopStats | None = None,
                  logger: Callable[[], Any] = _Silent,
@@ -164,10 +165,12 @@ class PlantSupervisor:
         self.stop_reason = SAFE_STOP_NONE
         self.stop_text = ""
         self.stop_time: float | None = None
-        # One commander (any node's: the first to send a valid command), counted in cycles.
-        self.guard = SingleSource(topics.JOINT_COMMANDS, (), handover_cycles, name_of,
-                                  self.once, what="commands", counter="commands_foreign",
-                                  unit="cycles")
+        # One commander, of the expected node(s) (``commanders``: full node names; empty:
+        # any node's, the first to send a valid command), counted in cycles
+        # (cr_control.supervision.plant_commander).
+        self.guard = SingleSource(topics.JOINT_COMMANDS, commanders, handover_cycles, name_of,
+                                  self.once, what="commands", parameter="commander",
+                                  counter="commands_foreign", unit="cycles")
         self.ticks = 0
         #: Wall time (s) of the last valid command (or of the start).
         self.commander_wall = 0.0

@@ -135,7 +135,7 @@ def test_plant_refuses_commands_in_the_wrong_field(scenario, joints, wrong, righ
     node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, timing.append, QOS)
     pub = node.create_publisher(JointState, topics.JOINT_COMMANDS, QOS)
     plant = start_node([*PLANT, "--ros-args", "-p", f"scenario:={scenario}",
-                   "-p", "watchdog_reaction:=disabled"], ros_env)
+                   "-p", "watchdog_reaction:=disabled", "-p", "commander:=/test_probe"], ros_env)
     try:
         assert probe.spin_until(lambda: len(states) > 10, timeout=60), "plant never started"
         for _ in range(5):

@@ -238,7 +238,9 @@ def test_rogue_commands_are_clipped_or_refused_and_counted(ros_env, probe):
     node.create_subscription(JointState, topics.JOINT_STATES, states.append, QOS)
     node.create_subscription(Float64MultiArray, topics.PLANT_TIMING, timing.append, QOS)
     rogue = node.create_publisher(JointState, topics.JOINT_COMMANDS, QOS)
-    plant = start_node(PLANT, ros_env, "-p", "watchdog_reaction:=disabled")
+    # the probe commands: the plant's commander by name (a node it was not told of is refused)
+    plant = start_node(PLANT, ros_env, "-p", "watchdog_reaction:=disabled",
+                       "-p", "commander:=/test_probe")
     try:
         assert probe.spin_until(lambda: len(states) > 10, timeout=60), "plant never started"
 
