@@ -62,7 +62,7 @@ def test_guarded_approach_from_5_cm_above_the_table(approach_run):
     assert m["peak"] <= 1.5 * TARGET
     # 5 cm at 3 cm/s (1.67 s), the contact confirmed over 5 cycles (measured 1.757 s; with
     # section 3.5.1's c_hat(0) the law ran ~1 cm ahead of its reference)
-    travel = CLEARANCE / robots.APPROACH["approach_speed"]
+    travel = CLEARANCE / robots.robot("panda_ft").approach_speed
     assert travel < m["t_contact"] < travel + 0.3
     assert m["settle"] < m["t_contact"] + 3.0
     assert abs(m["late_mean"] - TARGET) < 0.3
@@ -82,13 +82,14 @@ BEYOND_M = {"adaptive_impedance": 0.015, "impedance": 0.002}
 def test_no_surface_in_reach_stops_after_approach_distance_and_holds(robot, scheme):
     """The table 30 cm below: the reference travels approach_distance (10 cm), stops there and
     holds; the arm follows as its law does and comes to rest. It never pushes on into the void."""
-    r = run_scheme(scheme, 5.5, robot=robot, plant_overrides={"start_clearance": 0.3, **NOISE_FREE})
     distance = robots.APPROACH["approach_distance"]
+    travel = distance / robots.robot(robot).approach_speed   # 10 cm at 3 (2) cm/s: 3.33 (5) s
+    r = run_scheme(scheme, travel + 2.2, robot=robot,
+                   plant_overrides={"start_clearance": 0.3, **NOISE_FREE})
     z, z_d = r.column("r_z"), r.column("r_d_z")
     phase = r.column("approach_phase")
     assert phase[-1] == contact_guard.NO_CONTACT
     stopped = r.time[np.argmax(phase == contact_guard.NO_CONTACT)]
-    travel = distance / robots.APPROACH["approach_speed"]   # 10 cm at 3 cm/s: 3.33 s
     assert travel < stopped < travel + 0.6     # braking over the last 5 mm
     assert np.nanmax(np.abs(r.true_force)) == 0.0
     assert np.abs(z[0] - z_d[r.time >= stopped] - distance).max() < 1e-4   # reference held

@@ -149,18 +149,20 @@ def test_wrench_conventions():
     assert math.isclose(np.linalg.norm(wrist[:3] - bias[:3]), weight, rel_tol=1e-6)
 
 
+@pytest.mark.parametrize("table", ["default", "stiff"])
 @pytest.mark.parametrize("robot", PROFILES)
 @pytest.mark.parametrize("scheme", robots.TASK_SPACE_SCHEMES)
-def test_a_guarded_start_from_above_the_table(scheme, robot):
-    """Started 5 cm above the default table: impact at most 1.5 x approach_speed, force peak
-    at most 1.5 x the target, no contact lost after the first touch, no sideways drift over
-    1 mm before contact."""
-    values, errors = run_case(Case(scheme, robot, clearance=0.05, duration=4.0))
-    print(f"\n{scheme} on {robot}: impact {values['impact_speed_m_s']:.3f} m/s, peak "
+def test_a_guarded_start_from_above_the_table(scheme, robot, table):
+    """Started 5 cm above the default table and a 10x stiffer one (50 kN/m): impact at most
+    1.5 x approach_speed, force peak at most 1.5 x the target, no contact lost after the first
+    touch, no sideways drift over 1 mm before contact. (Before the impact damping every scheme
+    bounced off the stiff table for 30-110 ms.)"""
+    values, errors = run_case(Case(scheme, robot, table, clearance=0.05, duration=5.0))
+    print(f"\n{scheme} on {robot}, {table} table: impact {values['impact_speed_m_s']:.3f} m/s, peak "
           f"{values['force_peak_N']:.2f} N, lost {values['contact_lost_s']:.3f} s, drift "
           f"{values['drift_before_contact_m'] * 1e3:.2f} mm")
     assert not errors
-    assert values["impact_speed_m_s"] <= 1.5 * robots.APPROACH["approach_speed"]
+    assert values["impact_speed_m_s"] <= 1.5 * robots.robot(robot).approach_speed
     assert values["force_peak_N"] <= 1.5 * robots.WIPE_FORCE
     assert values["contact_lost_s"] == 0.0
     assert values["drift_before_contact_m"] < 1e-3

@@ -141,17 +141,15 @@ def test_the_ur5_runs_at_its_drivers_rate():
 
 # -- lockstep over ROS -----------------------------------------------------------------------------
 LOCKSTEP_S = 2.0
-#: Lockstep against offline. 1e-6 before the guarded approach; the guarded approach's contact (the
-#: reference stops at once) asks a torque step at the plant node's rate limit (1 N m per
-#: cycle: r_d' goes from the approach speed to the path's at once), so from then the runs
-#: differ slightly (measured: 1.1e-5 m in e_x and 0.018 N in f_z on the Panda; torques up to
-#: 0.96 N m apart for a few cycles, ur5 robust_adaptive_impedance). Per field kind: m, N, N m, rad.
-#: Lockstep vs offline. The force differs by up to 1.26 N (measured 0.56-1.26 N on the Panda
-#: and UR5 chapter 3 laws) since the robots run the wrist sensor with its tool and the guarded
-#: approach: at contact the law asks a torque step the plant node's rate limit (1000 N m/s)
-#: clips, the offline loop has none; before that merge 0.05 N held. Positions still agree to
-#: 1e-4 m; a joint command by up to 2.31 N m (the UR5's, at that contact; 1.5 held before).
-LOCKSTEP_TOL = {"e": 1e-4, "f": 2.0, "tau": 3.0, "e_rot": 1e-3}
+#: Lockstep against offline, per field kind (m, N, N m, rad): the same numbers, with the plant
+#: node's torque-rate limit opened (OPEN_RATE_LIMIT). With the node's 1 kN m/s limit the runs
+#: parted at the guarded approach's contact, where the law asks a torque step the limit clips
+#: (up to 1.26 N and 2.31 N m apart; with the impact damping 0.12-0.24 mm in e_y on the UR5);
+#: the limit itself is tested with the plant's guards.
+LOCKSTEP_TOL = {"e": 1e-9, "f": 1e-6, "tau": 1e-6, "e_rot": 1e-9}
+#: The plant node's torque-rate limit in the comparison (N m/s): opened, as the offline loop
+#: has none.
+OPEN_RATE_LIMIT = 1e9
 
 
 @pytest.mark.ros
@@ -166,7 +164,8 @@ def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
 
     cfg = SessionConfig(scheme=scheme, duration=LOCKSTEP_S, mode="lockstep", out=tmp_path,
                         domain_id=next_domain(), name="run", robot=robot,
-                        overrides=[f"plant.{k}={v}" for k, v in sensor_noise_free(robot).items()])
+                        overrides=[f"plant.{k}={v}" for k, v in sensor_noise_free(robot).items()]
+                        + [f"plant.effort_rate_limit={OPEN_RATE_LIMIT:g}"])
     s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
     offline = run_scheme(scheme, LOCKSTEP_S, robot=robot, plant_overrides=sensor_noise_free(robot))
     rate = robots.robot(robot).rate_hz
