@@ -48,7 +48,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from cr_control.core import cdr, topics
-from cr_control.core.rate_limited_log import RateLimitedLog
+from cr_control.core.rate_limited_log import RateLimitedLog, logger_emit
 from cr_control.supervision.single_source import SingleSource
 from cr_sim.loop_stats import (
     SAFE_STOP_CONTACT_FORCE,
@@ -195,15 +195,8 @@ class PlantSupervisor:
 
     # -- logging -----------------------------------------------------------------------
     def _emit(self, severity: str, text: str) -> None:
-        """One call site per severity: rclpy's logger refuses a call site whose severity
-        changes between calls."""
-        logger = self._logger()
-        if severity == "error":
-            logger.error(text)
-        elif severity == "warn":
-            logger.warn(text)
-        else:
-            logger.info(text)
+        """Onto the logger of the moment (:func:`logger_emit`: one call site per severity)."""
+        logger_emit(self._logger())(severity, text)
 
     def warn_once(self, key: str, text: Callable[[], str]) -> None:
         """Log ``text()`` as a warning the first time ``key`` comes (built only then)."""
