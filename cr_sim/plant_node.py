@@ -70,6 +70,7 @@ from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.raw_messages import JointStateReader
 from cr_control.nodes.ros_parameters import declare, police_changes
 from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
+from cr_control.nodes.state_source import publisher_node
 from cr_control.supervision.plant_commander import COMMANDER_PARAMETER
 from cr_control.supervision.single_source import expected_names, full_node_name
 from cr_sim.loop_stats import SAFE_STOP_REASONS, LoopStats
@@ -348,13 +349,13 @@ class PlantNode(Node):
     # -- commands in ----------------------------------------------------------------
     def _publisher_node(self, gid: bytes) -> str | None:
         """The full node name of the publisher ``gid`` on /joint_commands, from the graph
-        (a query: once per publisher, for the log lines); None if the graph does not know it."""
+        (a query: once per publisher, cached by the commander rule); None if the graph does
+        not know it or its node yet (rmw's "_NODE_NAME_UNKNOWN_": asked again later, never
+        taken for a name)."""
         try:
-            infos = self.get_publishers_info_by_topic(self.command_sub.topic_name)
-        except Exception:  # noqa: BLE001 - a log line's detail, never worth failing for
+            return publisher_node(self, self.command_sub.topic_name, gid)
+        except Exception:  # noqa: BLE001 - a graph query that fails names nobody
             return None
-        return next((full_node_name(info.node_namespace, info.node_name) for info in infos
-                     if bytes(info.endpoint_gid) == gid), None)
 
     def _on_command(self, data: bytes | None, gid: bytes = b"", length: int = 0) -> None:
         """A serialized command from the publisher ``gid`` (its GID; b"" if unknown);
