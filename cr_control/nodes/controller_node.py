@@ -209,13 +209,12 @@ class ControllerNode(LifecycleNode):
             self._subscribe_states()
         self.source_watch = StateSourceWatch(self, topics.JOINT_STATES, self.state_source,
                                              quiet_on_shutdown(self, self._on_named))
-        if hasattr(self.controller, "set_target_pose"):    # task-space schemes: live targets
+        if self.controller.TASK_SPACE:      # live targets and a wrist sensor to zero
             self._base_link = self.controller.values["base_link"]
             self.create_subscription(PoseStamped, f"~/{topics.TARGET_POSE_SUFFIX}",
                                      quiet_on_shutdown(self, self._on_target_pose), TARGET_QOS)
             self.create_subscription(WrenchStamped, f"~/{topics.TARGET_WRENCH_SUFFIX}",
                                      quiet_on_shutdown(self, self._on_target_wrench), TARGET_QOS)
-        if hasattr(self.controller, "zero_ft"):            # task-space schemes: a wrist sensor
             self.create_service(Trigger, "~/zero_ft", quiet_on_shutdown(self, self._on_zero_ft))
             self.create_service(Trigger, "~/zero_ft_force",
                                 quiet_on_shutdown(self, self._on_zero_ft_force))

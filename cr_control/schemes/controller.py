@@ -258,6 +258,9 @@ class Controller(ABC):
     """
 
     scheme: str = ""
+    #: Whether the law takes live targets (``set_target_pose``, ``set_target_wrench``) and has a
+    #: wrist sensor to zero (``zero_ft``): the task-space schemes.
+    TASK_SPACE: bool = False
     PARAMETERS: list[Param] = []
     command_interface = "effort"
     reference_fields: list[str] = REFERENCE_FIELDS

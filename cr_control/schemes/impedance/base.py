@@ -126,6 +126,8 @@ class TaskSpaceController(Controller):
     their own gains, state and status fields after the family's.
     """
 
+    TASK_SPACE = True
+
     JOINT_NAMES_PARAMETER = JOINT_NAMES
     #: Overrides of ROBOT_PARAMETERS' defaults (name -> (default, description)).
     ROBOT_DEFAULTS: dict[str, tuple[Any, str]] = {}
