@@ -174,6 +174,27 @@ def stiff_table(monitor: bool):
                       supervise=False)
 
 
+def test_the_chatter_case_runs_through_with_the_monitor_and_not_without():
+    """config/panda_stiff_table.yaml with the plant's supervision in the loop (its reflexes,
+    not its command limits: as a session with plant.effort_rate_limit opened): with the
+    monitor the whole 8 s without a reflex stop (it reacts at 0.07 s, while the force still
+    ramps in; the true force peaks at 19.5 N); without it the tool bounces to the plant's
+    50 N contact-force reflex (at 0.59 s). With the node's 1 kN m/s torque-rate limit the
+    session still reaches that reflex at 0.55 s, monitor or not (docs/any_robot.md)."""
+    from cr_control.tools.session import _load_params_file, config_file
+    params = _load_params_file(config_file("panda_stiff_table.yaml"))
+    plant = {k: v for k, v in params["plant"].items() if k != "scenario"}
+    runs = {monitor: run_scheme("adaptive_impedance", 8.0,
+                                {**params["adaptive_impedance"], "stability_monitor": monitor},
+                                robot="panda_ft", plant_overrides=plant)
+            for monitor in (True, False)}
+    on, off = runs[True], runs[False]
+    assert on.safe_stop_reason == 0 and on.true_force[:, 2].max() < 25.0
+    assert on.column("stiffness_scale").min() == pytest.approx(0.2)
+    assert on.time[np.argmax(on.column("stiffness_scale") < 1.0)] < 0.2
+    assert off.safe_stop_text.startswith("REFLEX: contact force") and off.safe_stop_at < 1.0
+
+
 def oscillation_rms(run, start: float, end: float) -> float:
     w = (run.time >= start) & (run.time < end)
     f = run.true_force[w, 2]
