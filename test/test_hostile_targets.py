@@ -73,20 +73,26 @@ def test_rate_limited_log_says_how_many_it_held_back():
     assert log.count == 25
 
 
+def zeroing(c, p, clock, duration: float, calls: range):
+    """An offline run of ``duration`` s at 1 kHz calling ~/zero_ft at the cycles in
+    ``calls``: (the run, the answers)."""
+    answers = []
+
+    def hook(k, t, controller, _plant):
+        clock[0] = t
+        if k in calls:
+            answers.append(controller.zero_ft())
+
+    return offline.run(c, p, duration, 1e-3, hook), answers
+
+
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_zero_ft_every_0_2_s_while_pressing_10_n_leaves_the_true_force_alone(scheme):
     """~/zero_ft every 0.2 s from 3 s to 6 s while the tool presses 10 N, held still: every
     call refused (in contact), the bias is the start-up one, the true force within 1 N of
     10 N throughout, and one warning line for the 16 refusals."""
     c, p, lines, clock = build(scheme, **HOLD)
-    answers = []
-
-    def hook(k, t, controller, _plant):
-        clock[0] = t
-        if 3000 <= k <= 6000 and k % 200 == 0:
-            answers.append(controller.zero_ft())
-
-    run = offline.run(c, p, 7.0, 1e-3, hook)
+    run, answers = zeroing(c, p, clock, 7.0, range(3000, 6001, 200))
     assert len(answers) == 16 and not any(ok for ok, _ in answers)
     assert all(why.startswith("in contact") for _, why in answers), answers
     assert np.array_equal(c.wrist.bias, c.wrist.first_bias)
@@ -102,14 +108,7 @@ def test_zero_ft_while_the_law_asks_4_5_n_is_refused():
     0.2 s. Before: 2 of 14 taken, the bias walked by 8.4 N, true force 13 N. Now the law's
     own desired force refuses them (it presses on purpose) and the true force stays."""
     c, p, _, clock = build("adaptive_impedance", desired_force=[0.0, 0.0, 4.5], **HOLD)
-    answers = []
-
-    def hook(k, t, controller, _plant):
-        clock[0] = t
-        if 3000 <= k < 6000 and k % 200 == 0:
-            answers.append(controller.zero_ft())
-
-    run = offline.run(c, p, 7.0, 1e-3, hook)
+    run, answers = zeroing(c, p, clock, 7.0, range(3000, 6000, 200))
     assert not any(ok for ok, _ in answers)
     assert all("asks for a contact force of 4.5 N" in why or why.startswith("in contact")
                for _, why in answers)          # the noise takes it over 5 N at times
@@ -125,14 +124,7 @@ def test_a_light_contact_cannot_walk_the_bias_beyond_zero_ft_max_change():
     0.84 N from the first, true force 1.27 N (0.45 N asked)."""
     c, p, _, clock = build("adaptive_impedance", desired_force=[0.0, 0.0, 0.45],
                            zero_ft_max_change=1.0, **HOLD)
-    answers = []
-
-    def hook(k, t, controller, _plant):
-        clock[0] = t
-        if 3000 <= k < 9000 and k % 200 == 0:
-            answers.append(controller.zero_ft())
-
-    run = offline.run(c, p, 10.0, 1e-3, hook)
+    run, answers = zeroing(c, p, clock, 10.0, range(3000, 9000, 200))
     taken = sum(ok for ok, _ in answers)
     walked = float(np.linalg.norm(c.wrist.bias[:3] - c.wrist.first_bias[:3]))
     print(f"{taken} of {len(answers)} taken, bias {walked:.3f} N from the first")

@@ -338,7 +338,7 @@ def monitor(g, s, force, f_d, dt, armed):
     the plant's 50 N reflex at 0.59 s, before the ramp's end), and a ramp never changes
     sign 10 times a second; the ringing of a 3 cm/s impact on a 50 kN/m table did, for a
     few tenths of a second."""
-    d_i = impact_damping(g, s, force, dt)
+    d_i = impact_damping(g, s, force.shape[0], dt)
     k, d = _chatter(g, s, force, f_d, dt,
                     armed or (s[_S_PHASE] == IN_CONTACT and d_i < IMPACT_SETTLED))
     d = max(d, d_i)
@@ -347,7 +347,7 @@ def monitor(g, s, force, f_d, dt, armed):
 
 
 @njit(cache=True, error_model="numpy")
-def impact_damping(g, s, force, dt):
+def impact_damping(g, s, m, dt):
     """The damping scale of a guarded approach's impact: from the confirmed contact (t_c the
     time since)
 
@@ -363,13 +363,9 @@ def impact_damping(g, s, force, dt):
     m_e)): on a table of 50 kN/m a 2.5 kg tool needs D of several hundred N s/m, far more than
     a compliant impedance has. It is velocity feedback (no force delay), stable while
     D dt / m_e < 2."""
-    m = force.shape[0]
     o = _after_u(m)[7]
     d_max, t_i = g[_G_DIRECTION + m + 7], g[_G_DIRECTION + m + 8]
-    phase = s[_S_PHASE]
-    if t_i <= 0.0 or phase == OFF:
-        return 1.0
-    if phase != IN_CONTACT:
+    if t_i <= 0.0 or s[_S_PHASE] != IN_CONTACT:
         return 1.0
     s[o + 12] += dt
     t_c = s[o + 12]
