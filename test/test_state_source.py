@@ -91,18 +91,25 @@ def test_the_controller_follows_the_plant_by_rule_not_a_publisher_already_there(
             return any(stamp_ns(c) == stamp for c in commands)
 
         assert probe.spin_until(lambda: answered(first), timeout=30), "the plant is not answered"
+        # The plant's first states may come before the graph knows its publisher: refused and
+        # counted as foreign too. Counted from a status published once the plant is followed.
+        seen = len(status)
+        assert probe.spin_until(lambda: len(status) > seen and answered(first), timeout=10)
+        before = topics_field(status[-1], "states_foreign")
         n = HUGE_ENTRIES
         second.publish(JointState(name=[f"j{i:06d}" for i in range(n)], position=[0.0] * n,
                                   velocity=[0.0] * n))
         foreign = [next(stamps) for _ in range(50)]
-        for stamp in foreign:
-            second.publish(state(stamp))
-        for _ in range(200):                             # the plant goes on meanwhile
+        for stamp in foreign:       # one a plant cycle: none overwritten in the writer's history
+            second.publish(state(stamp))                # (depth 10) before it was delivered
+            assert answered(first), "the plant's state went unanswered"
+        for _ in range(150):                             # the plant goes on meanwhile
             assert answered(first), "the plant's state went unanswered"
         assert probe.spin_until(lambda: diagnostic_value(diagnostics, "unfollowed_publishers")
                                 == "1", timeout=10), "the intruder was not reported"
-        assert probe.spin_until(lambda: topics_field(status[-1], "states_foreign") == 50
-                                and answered(first), timeout=10), "foreign states not counted"
+        assert probe.spin_until(lambda: topics_field(status[-1], "states_foreign") - before == 50
+                                and answered(first), timeout=10), \
+            f"foreign states not counted: {topics_field(status[-1], 'states_foreign')} - {before}"
         assert not {stamp_ns(c) for c in commands} & set(foreign)
         last = status[-1]
         # the 10 MB one: refused unread if it arrives; the middleware may drop it first (seen
@@ -127,7 +134,9 @@ def test_the_controller_follows_the_plant_by_rule_not_a_publisher_already_there(
         _, out = stop_node(proc)
     assert failure is None, f"{failure}; the node printed:\n{out[-3000:]}"
     assert "following node '/plant'" in out, out[-3000:]
-    assert "node '/intruder'" in out and "only '/plant' is followed" in out, out[-3000:]
+    # named once the graph knows it: in the refusal's warning, or in the count of publishers
+    # not followed (the refusal may come first, from a publisher still unknown to the graph)
+    assert "not followed (/intruder): only /plant is followed" in out, out[-3000:]
 
 
 def topics_field(msg, name: str) -> float:
