@@ -1,8 +1,8 @@
 """The plant node: one simulated scenario on the topic contract, realtime or lockstep.
 
 - ``realtime``: a wall-clock timer at ``rate_hz``; each tick integrates the wall time
-  elapsed since the last one (in whole periods, the remainder carried to the next tick)
-  with the latest command held, then publishes the state stamped with the wall clock.
+  elapsed since the last one (:mod:`cr_sim.realtime_clock`) with the latest command
+  held, then publishes the state stamped with the wall clock.
   A command that answers the latest state integrates its first period as soon as it
   arrives ("stepped ahead"): the tick then only publishes, so the state leaves on the
   tick, not a plant step later, and the controller's whole period is left for the round
@@ -85,13 +85,13 @@ from cr_sim.plant_setup import (  # noqa: F401 - plant_parameters: the tools' wa
     initial_command,
     plant_parameters,
     unlimited_joints,
+    unlimited_note,
     warm_up,
 )
 from cr_sim.plants.registry import SCENARIOS
+from cr_sim.realtime_clock import CatchUp, PublishTimes
 from cr_sim.supervisor import MAX_COMMAND_BYTES, PlantSupervisor
 
-#: Publish times kept for matching commands to the states they answer.
-_RING = 64
 #: Realtime: a tick integrates at most this many periods of the wall time since the last
 #: one (20 ms); a longer stall of the loop is dropped, not integrated with a stale command.
 MAX_CATCH_UP_PERIODS = 20
@@ -125,10 +125,8 @@ class PlantNode(Node):
         self.joint_names = list(self.plant.joint_names)
         self.command_names = tuple(self.plant.command_joints)
         self.limiter = command_limiter(self.plant, self.settings, self.period)
-        if unbounded := unlimited_joints(self.plant, self.limiter):
-            self.get_logger().warn(f"no command limit known for {unbounded} (no URDF limit): "
-                                   "commands to them are not bounded" + ("; set effort_limit" if
-                                   self.plant.command_interface == "effort" else ""))
+        if note := unlimited_note(self.plant, self.limiter):
+            self.get_logger().warn(note)
         self.finished = Future()
         self.stats = LoopStats()
         self.scenario = scenario["scenario"]
@@ -150,16 +148,13 @@ class PlantNode(Node):
 
         self.command_stamp: int | None = None            # stamps as integer nanoseconds
         self.state_stamp: int | None = None
-        self._ring_stamps: list[int | None] = [None] * _RING
-        self._ring_times = [0.0] * _RING
-        self._ring_i = 0
+        self._sent = PublishTimes()     # when the last states left, for the round trips
         self._resume_requested = False
         self._started = False
         self._recorder_ready = not self.settings["wait_for_recorder"]
         self._t0_wall = 0.0
         self._last_tick = 0.0
-        self._carry = 0.0          # realtime: wall time not yet simulated (s)
-        self._dropped_s = 0.0      # realtime: wall time of stalls not simulated (s)
+        self._catch_up = CatchUp(self.period, MAX_CATCH_UP_PERIODS)    # realtime
         # Realtime: seconds the step ahead of the next tick took (None: not stepped ahead).
         self._ahead_time: float | None = None
         self._last_publish_wall = 0.0
@@ -188,19 +183,11 @@ class PlantNode(Node):
         self._publish_timing = self.report.publish
         self._read_command = JointStateReader()
 
-        # Commands with their publisher's GID (rclpy 7.1 hands none to Python: see
-        # sender_aware); without rcl's take at hand, a plain raw subscription that cannot
-        # tell publishers apart (one commander is then not enforced: warned).
-        on_command = quiet_on_shutdown(self, self._on_command)
-        if sender_aware.available():
-            self.command_sub = sender_aware.subscribe(self, JointState, topics.JOINT_COMMANDS,
-                                                      on_command, CONTROL_QOS, MAX_COMMAND_BYTES)
-        else:
-            self.get_logger().warn("rcl's take is not reachable through ctypes: publishers on "
-                                   f"{topics.JOINT_COMMANDS} cannot be told apart, every one "
-                                   "is obeyed")
-            self.command_sub = self.create_subscription(
-                JointState, topics.JOINT_COMMANDS, on_command, CONTROL_QOS, raw=True)
+        # Commands with their publisher's GID (rclpy 7.1 hands none to Python: sender_aware).
+        self.command_sub = sender_aware.subscribe_or_raw(
+            self, JointState, topics.JOINT_COMMANDS, quiet_on_shutdown(self, self._on_command),
+            CONTROL_QOS, MAX_COMMAND_BYTES, CONTROL_QOS, "every one is obeyed: one commander "
+            "is not enforced")
         if self.settings["wait_for_recorder"]:
             self.create_subscription(Bool, topics.RECORDER_READY, self._on_recorder_ready, READY_QOS)
         # Timers are made here and started later: EventsExecutor does not pick up timers
@@ -243,8 +230,7 @@ class PlantNode(Node):
 
     # -- parameters -----------------------------------------------------------------
     def _on_parameter(self, name: str, value) -> None:
-        if name == "resume" and value:
-            self._resume_requested = True   # acted on (and reset) by the next tick
+        self._resume_requested |= name == "resume" and bool(value)   # acted on by the next tick
 
     def _resume(self) -> None:
         self._resume_requested = False
@@ -295,7 +281,8 @@ class PlantNode(Node):
             f"done: {self.plant.time:.3f} s simulated in {time.monotonic() - self._t0_wall:.3f} s wall, "
             f"{self.stats.total_cycles} cycles, {self.stats.commands_refused} commands refused, "
             f"{self.stats.commands_clipped} clipped"
-            + (f", {self._dropped_s:.3f} s of stalls not simulated" if self._dropped_s else "")
+            + (f", {self._catch_up.dropped_s:.3f} s of stalls not simulated"
+               if self._catch_up.dropped_s else "")
             + (f", in safe stop ({SAFE_STOP_REASONS[self.stats.safe_stop_reason]})"
                if self.safe_stop else ""))
         wait_for_readers(list(self.publishers), 2.0)   # the last messages reach the recorder
@@ -331,20 +318,9 @@ class PlantNode(Node):
         key = sec * 1_000_000_000 + nanosec
         self.state_stamp = key
         self._last_publish_wall = now
-        i = self._ring_i = (self._ring_i + 1) % _RING
-        self._ring_stamps[i], self._ring_times[i] = key, now
+        self._sent.sent(key, now)
         self.stats.published(time.perf_counter() - start)
         self.markers.tick(self.plant.time, sec, nanosec)
-
-    def _published_at(self, key: int) -> float | None:
-        """Wall time the state stamped ``key`` was published (None if not among the last)."""
-        stamps, i = self._ring_stamps, self._ring_i
-        for k in range(_RING):
-            j = (i - k) % _RING
-            if stamps[j] == key:
-                stamps[j] = None      # one round trip per state
-                return self._ring_times[j]
-        return None
 
     # -- commands in ----------------------------------------------------------------
     def _publisher_node(self, gid: bytes) -> str | None:
@@ -371,7 +347,7 @@ class PlantNode(Node):
         if not sup.accept(msg, gid, now):
             return
         key = msg.sec * 1_000_000_000 + msg.nanosec
-        sent = self._published_at(key)
+        sent = self._sent.answered(key)
         if sent is not None:
             self.stats.round_trip(now - sent)
         self.command_stamp = key
@@ -447,19 +423,7 @@ class PlantNode(Node):
             self._finish()
             return
         start = time.perf_counter()
-        # Whole periods, the rest carried to the next tick: every step has the same dt
-        # (an LTI plant's exact discretisation is then computed once, not every tick:
-        # ~190 us -> ~4 us for the ch. 4 plant) and simulated time follows wall time to
-        # within a period.
-        # After a gap (a stalled tick) at most MAX_CATCH_UP_PERIODS are integrated: the rest
-        # of the gap is dropped (simulated time falls behind wall time; said in the "done"
-        # line) rather than integrated under a command held that long.
-        due = elapsed + self._carry
-        substeps = max(1, round(due / self.period))
-        if substeps > MAX_CATCH_UP_PERIODS:
-            self._dropped_s += (substeps - MAX_CATCH_UP_PERIODS) * self.period
-            substeps, due = MAX_CATCH_UP_PERIODS, MAX_CATCH_UP_PERIODS * self.period
-        self._carry = max(due - substeps * self.period, -self.period)
+        substeps = self._catch_up.periods(elapsed)   # whole periods, gaps clamped
         ahead, self._ahead_time = self._ahead_time, None
         for _ in range(substeps - (ahead is not None)):
             self._step()

@@ -124,6 +124,15 @@ def unlimited_joints(plant: Plant, limiter: CommandLimiter) -> list[str]:
             if lo == -np.inf and hi == np.inf]
 
 
+def unlimited_note(plant: Plant, limiter: CommandLimiter) -> str | None:
+    """The node's warning at start for joints whose commands are not bounded (None: all are)."""
+    unbounded = unlimited_joints(plant, limiter)
+    if not unbounded:
+        return None
+    return (f"no command limit known for {unbounded} (no URDF limit): commands to them are not "
+            "bounded" + ("; set effort_limit" if plant.command_interface == "effort" else ""))
+
+
 def warm_up(spare: Plant, period: float) -> None:
     """Run a spare plant of the node's scenario through what ticks and a safe stop call
     (steps, measurement, sensors, reflex checks, true contact wrench, brakes), so that the

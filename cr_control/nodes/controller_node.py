@@ -316,16 +316,10 @@ class ControllerNode(LifecycleNode):
     def _subscribe_states(self) -> None:
         """/joint_states with each message's publisher GID (:mod:`sender_aware`), or, where
         rcl cannot be reached, a plain raw subscription that cannot tell publishers apart."""
-        callback = quiet_on_shutdown(self, self._on_joint_state)
-        if sender_aware.available():
-            self._state_sub = sender_aware.subscribe(self, JointState, topics.JOINT_STATES,
-                                                     callback, STATE_QOS,
-                                                     self.inputs.read.max_state_bytes)
-            return
-        self._state_sub = self.create_subscription(JointState, topics.JOINT_STATES, callback,
-                                                   CONTROL_QOS, raw=True)
-        self.get_logger().warn(f"rcl's take is out of reach here: states of every publisher on "
-                               f"{topics.JOINT_STATES} are answered (they cannot be told apart)")
+        self._state_sub = sender_aware.subscribe_or_raw(
+            self, JointState, topics.JOINT_STATES, quiet_on_shutdown(self, self._on_joint_state),
+            STATE_QOS, self.inputs.read.max_state_bytes, CONTROL_QOS,
+            "the states of every one are answered")
 
     def _subscribe_once_settled(self) -> None:
         self._settle_timer.cancel()

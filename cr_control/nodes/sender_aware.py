@@ -224,3 +224,15 @@ def subscribe(node: Node, msg_type, topic: str, callback: Callable, qos: QoSProf
     sub = SenderAwareSubscription(node, msg_type, topic, callback, qos, max_bytes)
     node.add_waitable(sub)
     return sub
+
+
+def subscribe_or_raw(node: Node, msg_type, topic: str, callback: Callable, qos: QoSProfile,
+                     max_bytes: int, raw_qos: QoSProfile, consequence: str):
+    """:func:`subscribe`, or where rcl's take is out of reach (:func:`available`) a plain raw
+    subscription with ``raw_qos``, which cannot tell publishers apart: warned, with its
+    ``consequence``."""
+    if available():
+        return subscribe(node, msg_type, topic, callback, qos, max_bytes)
+    node.get_logger().warn(f"rcl's take is out of reach here: publishers on {topic} cannot be "
+                           f"told apart ({consequence})")
+    return node.create_subscription(msg_type, topic, callback, raw_qos, raw=True)
