@@ -183,9 +183,11 @@ APPROACH_CH5_THRESHOLD = 1.5
 #: contact-stability monitor is armed (it detects once the force is ramped in); with 1 s and
 #: 1.5 s the monitor took its end for chatter.
 NN_FORCE_RAMP_TIME = 2.0
-#: The largest ~/target_wrench force the wiping task takes (N): 5x its 10 N; a larger one is
-#: scaled down to it (cr_control.schemes.impedance.base).
-MAX_TARGET_FORCE = 5.0 * WIPE_FORCE
+#: The largest ~/target_wrench force the wiping task takes (N): 3x its 10 N, so that a law's
+#: overshoot (at most 1.5x a target) stays below the plant's 50 N force reflex
+#: (max_contact_force, as libfranka's); a larger one is scaled down to it
+#: (cr_control.schemes.impedance.base). At 50 N a 1e6 N target tripped that reflex at 3.1 s.
+MAX_TARGET_FORCE = 3.0 * WIPE_FORCE
 #: The task-space schemes (chapters 3 and 5) that run on a robot.
 TASK_SPACE_SCHEMES = ("adaptive_impedance", "robust_adaptive_impedance", "nn_adaptive_impedance",
                       "impedance", "fuzzy_unidirectional")

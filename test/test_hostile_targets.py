@@ -300,7 +300,7 @@ def test_absurd_target_poses_are_clamped_refused_or_normalised():
     assert np.linalg.norm(p - c.reach_centre) == pytest.approx(c.reach)
     assert np.allclose(p - c.reach_centre, c.reach * np.array([1.0, -1.0, 1.0]) / np.sqrt(3.0))
     assert np.array_equal(c.targets[quat], [1.0, 0.0, 0.0, 0.0])      # not 1e200 / inf = 0
-    assert "beyond the arm's reach" in lines[0]
+    assert "of the arm's reach" in lines[0]
     assert c.set_target_pose(np.array([0.3, 0.0, 0.5]), np.array([1e-200, 0.0, 0.0, 1e-200]))
     assert np.allclose(c.targets[quat], [2 ** -0.5, 0.0, 0.0, 2 ** -0.5])
     assert np.array_equal(c.targets[pos], [0.3, 0.0, 0.5])            # within reach: as given
@@ -313,39 +313,55 @@ def test_absurd_target_poses_are_clamped_refused_or_normalised():
     assert len(lines) == 2 and "non-finite" in lines[1]
 
 
-@pytest.mark.parametrize("scheme", ["adaptive_impedance", "impedance"])
-def test_a_target_pose_10_m_away_takes_the_tip_at_most_to_the_reach(scheme):
-    """Streamed at 10 Hz from 2 s: straight up 10 m. Before: taken as it came (the filter
-    asked 18 m/s). Now the target goes onto the reach sphere (1.09 m from the Panda's first
-    joint) and the reference moves at target_max_speed (0.5 m/s): the tip stays inside, at
-    most 0.55 m/s (measured 0.52), never stopped, never pressing the table."""
-    c, p, lines, clock = build(scheme)
+FAR_TARGETS = {"10_m_up": [0.0, 0.0, 10.0], "1e300_m": [1e300, -1e300, 1e300]}
+
+
+@pytest.mark.parametrize("target", FAR_TARGETS)
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_a_target_pose_out_of_reach_never_needs_a_reflex(scheme, target, robot="panda_ft"):
+    """Streamed at 10 Hz from 2 s, tool pointing down: 10 m up, or 1e300 m away. The target
+    goes onto 90 % of the reach sphere (1.09 m from the Panda's first joint, 1.24 m from the
+    UR5's), the reference moves at target_max_speed (0.5 m/s) at most and waits while a
+    joint passes PACE_FULL of its velocity limit: the tip stays inside, no joint passes 0.9
+    of its velocity limit (the reference stands from PACE_STOP, 0.4; the arm's deceleration
+    adds the rest: 0.36-0.82 measured), never stopped, never pressing, and the plant's
+    reflexes never trip. Before (full
+    reach, no pace; Panda): adaptive_impedance's joint 4 passed its 2.175 rad/s limit 2.1 s
+    after the target came (velocity reflex at 4.11 s); with the pace alone, the robust law
+    still oscillated into the reflex at the stretched arm's singularity. Not yet on the UR5
+    (docs/safety.md): the robust law reaches its velocity reflex on the 1e300 m target."""
+    c, p, lines, clock = build(scheme, robot)
+    period = offline.robot_period(robot)
 
     def hook(k, t, controller, _plant):
         clock[0] = t
-        if k >= 2000 and k % 100 == 0:
-            controller.set_target_pose(np.array([0.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0, 0.0]))
+        if t >= 2.0 and k % round(0.1 / period) == 0:
+            controller.set_target_pose(np.array(FAR_TARGETS[target]), np.array([0.0, 1.0, 0.0, 0.0]))
 
-    run = offline.run(c, p, 7.0, 1e-3, hook, supervise=False)
+    run = offline.run(c, p, 8.0, period, hook)
     r = np.column_stack([run.column(f"r_{a}") for a in "xyz"])
-    v = np.column_stack([run.column(f"v_{a}") for a in "xyz"])
     reference_speed = np.linalg.norm(np.column_stack([run.column(f"v_d_{a}") for a in "xyz"]),
                                      axis=1)
     distance = np.linalg.norm(r - c.reach_centre, axis=1)
-    print(f"{scheme}: farthest {distance.max():.3f} m of {c.reach:.3f}, tip speed "
-          f"{np.linalg.norm(v, axis=1).max():.2f} m/s, true force {run.true_force[:, 2].max():.1f} N")
+    limit = p.joint_limits().velocity
+    speed = (np.abs(run.velocity[:, :limit.shape[0]]) / limit).max()
+    print(f"{scheme} on {robot}, {target}: farthest {distance.max():.3f} m of {c.reach:.3f}, "
+          f"joint speed {speed:.2f} of its limit, true force {run.true_force[:, 2].max():.1f} N")
+    assert run.safe_stop_reason == 0, run.safe_stop_text
+    assert speed < 0.9
     assert distance.max() <= c.reach and distance[-1] > distance[0] + 0.3
     assert reference_speed[run.time > 2.0].max() <= c.values["target_max_speed"] * 1.001
-    assert np.linalg.norm(v, axis=1).max() < 0.55
     assert c.stops == 0 and c.commanding
     assert run.true_force[:, 2].max() <= 1.5 * robots.WIPE_FORCE
-    assert sum("beyond the arm's reach" in line for line in lines) == 1   # 50 sent in 5 s
+    assert sum("of the arm's reach" in line for line in lines) == 2   # 60 in 6 s, 1 per 5 s
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_a_1e6_n_target_wrench_is_scaled_to_max_target_force(scheme):
-    """1e6 N into the table, streamed from 3 s: scaled to max_target_force (50 N on the
-    robot profiles); the true force stays under 1.5 x 50 N."""
+    """1e6 N into the table, streamed from 3 s: scaled to max_target_force (30 N on the
+    robot profiles); the true force stays under 1.5 x 30 N, below the plant's 50 N force
+    reflex, which never trips (the plant's supervision in the loop). Before, with 50 N: the
+    reflex at 3.13 s (adaptive_impedance)."""
     c, p, lines, clock = build(scheme)
 
     def hook(k, t, controller, _plant):
@@ -353,9 +369,10 @@ def test_a_1e6_n_target_wrench_is_scaled_to_max_target_force(scheme):
         if k >= 3000 and k % 100 == 0:
             controller.set_target_wrench(np.array([0.0, 0.0, 1e6]))
 
-    run = offline.run(c, p, 6.0, 1e-3, hook, supervise=False)
+    run = offline.run(c, p, 6.0, 1e-3, hook)
     assert c.values["max_target_force"] == LIMIT
     assert run.column("f_d_z").max() <= LIMIT
-    assert run.true_force[:, 2].max() <= 1.5 * LIMIT
+    assert run.true_force[:, 2].max() <= 1.5 * LIMIT < p.max_contact_force
+    assert run.safe_stop_reason == 0, run.safe_stop_text
     assert abs(run.true_force[run.time > 5.5, 2].mean() - LIMIT) < 2.0
-    assert sum("above max_target_force 50 N" in line for line in lines) == 1   # 30 in 3 s
+    assert sum(f"above max_target_force {LIMIT:g} N" in line for line in lines) == 1  # 30 in 3 s

@@ -25,7 +25,14 @@ Three sources, one after the other:
    any streamed path slower than v_max, is followed exactly as without it). The desired
    orientation (the tip's orientation at the first state until a target arrives) follows
    the same filter on SO(3): w_d' = w_f^2 log(q_target q_d^-1) - 2 w_f w_d, q_d advanced by
-   exp(w_d dt).
+   exp(w_d dt). Where the arm cannot follow, the filter waits for it: the pace
+   p = clip((PACE_STOP - s) / (PACE_STOP - PACE_FULL), 0, 1), s the largest ratio of a
+   joint's speed to its URDF velocity limit, scales v_max and the orientation's pull
+   (w_f^2 p log(...)). Up to PACE_FULL of every limit nothing changes; from PACE_STOP on
+   the reference is given no further target and decelerates as the filter does. A target
+   at the edge of the reach (a Panda stretched straight up, its wrist turned to point the
+   tool down) asks fast joints for a slow tip: followed at 0.5 m/s, joint 4 passed its
+   2.175 rad/s limit 2.1 s after a target 10 m up (offline, Panda).
 3. The desired force f_d: ``desired_force``, or the latest ``~/target_wrench``, ramped in
    over ``force_ramp_time`` from the first state (a robot that starts touching the table
    must not be kicked into it: the admittance below would start at (f_d - f)/m_a). The
@@ -126,6 +133,10 @@ def reference_parameters(m: int, offset: list[float], amplitude: list[float],
 
 #: Targets set by the node (one float vector): a pose counter (0 = none yet), its position
 #: (3) and quaternion [w, x, y, z]; a wrench counter (0 = none yet) and its force (3).
+#: The target filter's pace (module docstring): full up to this fraction of every joint's
+#: URDF velocity limit, stopped from PACE_STOP (below the joint limit guard's brake at 0.8).
+PACE_FULL = 0.2
+PACE_STOP = 0.4
 TARGETS = Layout(pose_seq=1, position=3, quaternion=4, wrench_seq=1, force=3)
 _T_POSE_SEQ, _T_POS, _T_QUAT, _T_WRENCH_SEQ, _T_FORCE = (TARGETS.offset(n) for n in TARGETS.shapes)
 #: An empty vector: the blocks' views of it are empty, where they end is their size.
@@ -328,6 +339,16 @@ def _admittance_stopped(delta, push, limit):
 
 
 @njit(cache=True, error_model="numpy")
+def target_pace(velocity_limit, v):
+    """The target filter's pace p in [0, 1] at joint velocities ``v`` (module docstring):
+    1 up to PACE_FULL of every joint's velocity limit, 0 from PACE_STOP of any."""
+    s = 0.0
+    for i in range(v.shape[0]):
+        s = max(s, abs(v[i]) / velocity_limit[i])
+    return min(1.0, max(0.0, (PACE_STOP - s) / (PACE_STOP - PACE_FULL)))
+
+
+@njit(cache=True, error_model="numpy")
 def _leash(target, x, v_max, w):
     """The target the filter is given: ``target``, or the point 2 v_max / w from ``x``
     towards it if it is farther (module docstring)."""
@@ -348,7 +369,7 @@ def _rows_of(x, rows, m):
 
 
 @njit(cache=True, error_model="numpy")
-def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
+def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force, pace=1.0):
     """The :data:`DesiredMotion` at time t (module docstring); its ramp is for laws with a
     desired force of their own.
 
@@ -356,8 +377,9 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
     :data:`ReferenceGains` / :data:`ReferenceState` blocks, ``targets`` the TARGETS vector;
     r, R, q are the measured tip position (task rows), tip rotation and joint positions,
     ``force`` the measured force on the task rows (for the admittance, the approach and the
-    monitor). The guarded approach, the target timeouts and the contact-stability monitor
-    are :mod:`cr_control.schemes.blocks.contact_guard`'s."""
+    monitor), ``pace`` the target filter's (:func:`target_pace`). The guarded approach, the
+    target timeouts and the contact-stability monitor are
+    :mod:`cr_control.schemes.blocks.contact_guard`'s."""
     m, n = r.shape[0], q.shape[0]
     g = reference_gains_views(gains, m, n)[0]
     s = reference_state_views(state, m, n)[0]
@@ -389,7 +411,7 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
                                      g.reference_frequency[0], t_path)
     quat_d, w_d = s.quat_f.copy(), s.w_f.copy()
     w_f = g.target_filter_frequency[0]
-    v_max = g.target_max_speed[0]
+    v_max = g.target_max_speed[0] * pace
     hold_r, hold_q = guard.hold_views(s.guard, m)
     if targets[_T_POSE_SEQ] != s.pose_seq[0]:
         if s.pose_seq[0] == 0.0:                # first target: start from the trajectory
@@ -413,7 +435,7 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force):
             s.r_f[:], s.v_f[:] = x, xd
             w_rot = s.w_f
             err = rotation_vector(quaternion_multiply(target_q, quaternion_conjugate(s.quat_f)))
-            w_rot += dt * (w_f * w_f * err - 2.0 * w_f * w_rot)
+            w_rot += dt * (w_f * w_f * pace * err - 2.0 * w_f * w_rot)
             s.quat_f[:] = quaternion_multiply(quaternion_exp(dt * w_rot), s.quat_f)
             quat_d, w_d = s.quat_f.copy(), w_rot.copy()
     if s.pose_seq[0] != 0.0:

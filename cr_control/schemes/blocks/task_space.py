@@ -78,6 +78,7 @@ from cr_control.schemes.blocks.references import (
     guard_state_of,
     reference_gains_size,
     reference_state_views,
+    target_pace,
 )
 
 #: Rotation rows of the posture projector are scaled by this length (m), see the docstring.
@@ -486,8 +487,9 @@ def task_front(chain, gains, state, targets, t, dt, q, v, force):
     f = np.empty(m)
     for i in range(m):
         f[i] = force[int(task[3 + i])]
+    pace = target_pace(common.limits[2 * q.shape[0]:3 * q.shape[0]], v)
     desired = desired_motion(task[3:6], common.reference, state, targets, t, dt, frame.r,
-                             frame.R, q, f)
+                             frame.R, q, f, pace)
     return frame, f, desired
 
 

@@ -21,10 +21,11 @@ node's ``~/target_pose`` and ``~/target_wrench``) take effect from the next cycl
 are dealt with here, each with a reason logged at most once every 5 s (with a count):
 a non-finite value or a zero quaternion is refused; the quaternion is normalised without
 overflow (scaled by its largest element first: a quaternion of norm 1e200 is a rotation,
-not zeros); a position farther from the first joint than the chain's reach is moved onto
-that sphere along the same direction (:func:`chain_reach`: the sum of the URDF's
-joint-to-joint distances and the tip's offset, which no configuration exceeds, by the
-triangle inequality; along the task's position axes); a force above ``max_target_force``
+not zeros); a position farther from the first joint than TARGET_REACH_FRACTION (90 %) of
+the chain's reach is moved onto that sphere along the same direction
+(:func:`chain_reach`: the sum of the URDF's joint-to-joint distances and the tip's offset,
+which no configuration exceeds, by the triangle inequality; along the task's position
+axes; the full stretch is singular); a force above ``max_target_force``
 is scaled down to it. The reference then follows a pose at most ``target_max_speed`` and
 the force given to the law changes at most ``target_force_rate``
 (:mod:`cr_control.schemes.blocks.references`). Measured before (the Panda's wiping task,
@@ -74,6 +75,13 @@ JOINT_NAMES = Param("joint_names", [], "Joints commanded, in the order of the co
 #: every joint is clipped at its own limit first, so a larger value clips nothing (a slip
 #: of units, N mm for N m).
 EFFORT_LIMIT_FACTOR = 10.0
+
+
+#: Target positions are held within this fraction of :func:`chain_reach`: at the full stretch
+#: the arm is singular (its task mass capped, ``singularity_mass``) and a target there, 10 m
+#: up, drove the robust law's switching term into a growing joint 2/4 oscillation until
+#: joint 6 passed its velocity limit (Panda, offline); at 90 % none did (Panda, UR5).
+TARGET_REACH_FRACTION = 0.9
 
 
 def chain_reach(chain_model) -> tuple[np.ndarray, float]:
@@ -286,7 +294,8 @@ class TaskSpaceController(Controller):
     def _target_checks(self) -> None:
         """The sphere target positions are held to (:func:`chain_reach`) and the rate
         limits of the targets' log lines."""
-        self.reach_centre, self.reach = chain_reach(self.model.chain_model)
+        self.reach_centre, full = chain_reach(self.model.chain_model)
+        self.reach = TARGET_REACH_FRACTION * full
         self._position_rows = self.model.task[3:3 + self.model.m].astype(int)
         self.target_notes = {"pose": wrist_sensor.RateLimitedLog(),
                              "wrench": wrist_sensor.RateLimitedLog()}
@@ -419,8 +428,8 @@ class TaskSpaceController(Controller):
             given = position.copy()
             position[rows] = self.reach_centre[rows] + (offset / distance) * self.reach
             self._target_note("pose", f"~/target_pose position {given.tolist()} is {distance:.3g} "
-                              f"m from the first joint, beyond the arm's reach "
-                              f"{self.reach:.3g} m: moved onto it, to "
+                              f"m from the first joint, beyond {TARGET_REACH_FRACTION:.0%} of "
+                              f"the arm's reach, {self.reach:.3g} m: moved there, to "
                               f"{np.round(position, 4).tolist()}")
         t = self.targets
         t[TARGETS.offset("position"):TARGETS.offset("position") + 3] = position
