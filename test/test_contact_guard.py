@@ -144,7 +144,8 @@ def test_stale_pose_target_holds_the_current_pose():
 
 def test_stale_wrench_target_decays_to_zero_and_a_fresh_one_ramps_back():
     """A 5 N target wrench streamed at 100 Hz stops at 1.5 s: stale at 2.0 s, f_d decays to
-    zero over wrench_timeout_decay (1 s); streaming again at 3.5 s ramps it back without a jump."""
+    zero over wrench_timeout_decay (1 s); streaming again at 3.5 s ramps it back without a jump.
+    The first target is approached from desired_force (10 N) at target_force_rate (100 N/s)."""
     wrench = np.array([0.0, 0.0, 5.0])
 
     def hook(k, t, controller, _plant):
@@ -155,10 +156,11 @@ def test_stale_wrench_target_decays_to_zero_and_a_fresh_one_ramps_back():
                                                **IDEAL_CONTROLLER},
                    robot="panda_ft", hook=hook, plant_overrides=IDEAL_PLANT)
     t, f_d, stale = r.time, r.column("f_d_z"), r.column("target_stale")
-    assert np.all(f_d[(t > 0.01) & (t < 2.0)] == 5.0)
+    assert f_d[0] == 10.0 and np.all(f_d[(t > 0.06) & (t < 2.0)] == 5.0)
+    assert np.abs(np.diff(f_d[t < 0.06])).max() <= 100.0 * 1e-3 * (1 + 1e-9)
     assert np.all(stale[(t > 2.02) & (t < 3.5)] == contact_guard.WRENCH_STALE)
     assert np.all(f_d[(t > 3.02) & (t < 3.5)] == 0.0)
-    assert np.abs(np.diff(f_d)).max() < 5.0 * 1.5e-3 * 1.01     # smoothstep over 1 s: 7.5 N/s
+    assert np.abs(np.diff(f_d[t > 0.06])).max() < 5.0 * 1.5e-3 * 1.01   # smoothstep over 1 s: 7.5 N/s
     assert f_d[-1] == 5.0 and stale[-1] == 0.0
 
 
@@ -174,13 +176,14 @@ def stiff_table(monitor: bool):
                       supervise=False)
 
 
-def test_the_chatter_case_runs_through_with_the_monitor_and_not_without():
+def test_the_chatter_case_runs_through_with_the_monitor_and_chatters_without():
     """config/panda_stiff_table.yaml with the plant's supervision in the loop (its reflexes,
     not its command limits: as a session with plant.effort_rate_limit opened): with the
     monitor the whole 8 s without a reflex stop (it reacts at 0.07 s, while the force still
-    ramps in; the true force peaks at 19.5 N); without it the tool bounces to the plant's
-    50 N contact-force reflex (at 0.59 s). With the node's 1 kN m/s torque-rate limit the
-    session still reaches that reflex at 0.55 s, monitor or not (docs/any_robot.md)."""
+    ramps in; the true force peaks at 19.5 N, 0.0-0.95 N RMS over 2 s windows); without it
+    the tool bounces on the table all along: 12.8-13.9 N RMS, peaks of 44.4 N, contact
+    lost 14 ms at a time. Before the force admittance was held to approach_speed out of
+    contact, the bouncing tool reached the plant's 50 N reflex at 0.59 s."""
     from cr_control.tools.session import _load_params_file, config_file
     params = _load_params_file(config_file("panda_stiff_table.yaml"))
     plant = {k: v for k, v in params["plant"].items() if k != "scenario"}
@@ -192,7 +195,9 @@ def test_the_chatter_case_runs_through_with_the_monitor_and_not_without():
     assert on.safe_stop_reason == 0 and on.true_force[:, 2].max() < 25.0
     assert on.column("stiffness_scale").min() == pytest.approx(0.2)
     assert on.time[np.argmax(on.column("stiffness_scale") < 1.0)] < 0.2
-    assert off.safe_stop_text.startswith("REFLEX: contact force") and off.safe_stop_at < 1.0
+    for start in (2.0, 4.0, 6.0):
+        assert oscillation_rms(off, start, start + 2.0) > 10.0 > 1.0 > oscillation_rms(on, start, start + 2.0)
+    assert off.true_force[:, 2].max() > 40.0
 
 
 def oscillation_rms(run, start: float, end: float) -> float:
@@ -213,11 +218,11 @@ def longest_loss_s(run, start: float) -> float:
 
 def test_monitor_calms_the_stiff_table():
     """config/panda_stiff_table.yaml: without the monitor the tool bounces on the table
-    (measured: 20.3-20.4 N RMS over every 2 s window, contact lost up to 17 ms at a time,
-    66 N peaks); with it the monitor reacts at 1.003 s (armed once the force is ramped in)
-    and the true force's oscillation over 2-4, 4-6 and 6-8 s is 0.12, 0.03 and 0.96 N RMS
-    (>= 5x lower: required), contact lost at most 13 ms at a time once it has reacted (<= 20
-    ms required)."""
+    (measured: 12.8-13.9 N RMS over every 2 s window, contact lost up to 14 ms at a time,
+    44 N peaks; 20.3-20.4 N RMS and 66 N before the force admittance was held to
+    approach_speed out of contact); with it the monitor reacts within the force ramp and
+    the true force's oscillation over 2-4, 4-6 and 6-8 s is 0.0, 0.95 and 0.0 N RMS (>= 5x
+    lower: required), contact lost at most 20 ms at a time once it has reacted."""
     off, on = stiff_table(False), stiff_table(True)
     assert off.column("stiffness_scale").min() == 1.0
     assert on.column("stiffness_scale").min() == pytest.approx(0.2)
@@ -225,7 +230,7 @@ def test_monitor_calms_the_stiff_table():
     assert reacted < robots.FORCE_RAMP_TIME + 0.5       # armed once the force is ramped in
     for start in (2.0, 4.0, 6.0):
         rms_off, rms_on = oscillation_rms(off, start, start + 2.0), oscillation_rms(on, start, start + 2.0)
-        assert rms_off > 15.0, start                                   # it chatters
+        assert rms_off > 10.0, start                                   # it chatters
         assert rms_on * 5.0 <= rms_off, start
     assert longest_loss_s(off, 0.5) > 0.01
     assert longest_loss_s(on, reacted) <= 0.02

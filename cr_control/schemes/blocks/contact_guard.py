@@ -27,6 +27,12 @@ confirmed the law's damping is scaled up by d_i within 5 ms, and back to nominal
 of being returned by the surface's elasticity. Without it a 3 cm/s approach bounces off a
 50 kN/m table for 30-110 ms (a Panda, every task-space scheme of this package).
 
+Contact made again (v_a > 0). Out of contact (the force along the desired one below
+``contact_threshold``), the force admittance of :mod:`.references` moves the reference at
+v_a at most (:func:`free_speed`): a wrench target that pulled the tool off the table and
+then pushes again brings it back at the approach's speed, not at the admittance's (f_d /
+d_a: a Panda came back from a 5 cm pull-away and hit at 17.6 N for a 10 N target).
+
 Target timeouts (``target_timeout`` T_o > 0). A target is stale once the control cycle's
 own time (the state stamps, so lockstep and the offline loop are deterministic) is more
 than T_o past the cycle that first saw it. A stale pose target is replaced by the filtered
@@ -248,6 +254,16 @@ def approach(g, s, t, dt, r, r_start, force, target_force, has_target_force):
             event(s, m)
     acc = (new - old) / dt if dt > 0.0 else 0.0
     return False, r_start + travelled * u, new * u, acc * u
+
+
+@njit(cache=True, error_model="numpy")
+def free_speed(g, force_along):
+    """The force admittance's speed bound (module docstring: contact made again): v_a while
+    the force along the desired one, ``force_along``, is below the contact threshold; inf
+    in contact or without a guarded approach."""
+    if g[_G_SPEED] > 0.0 and abs(force_along) < g[_G_THRESHOLD]:
+        return g[_G_SPEED]
+    return np.inf
 
 
 @njit(cache=True, error_model="numpy")
