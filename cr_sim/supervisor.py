@@ -86,6 +86,7 @@ class Command(Protocol):
     name: tuple[str, ...]
     position: Sequence[float]
     effort: Sequence[float]
+    frame_id: str
 
 
 def reflex(plant: Plant, max_force: float,
@@ -261,6 +262,7 @@ class PlantSupervisor:
         else:
             guard.heard(gid, cycles)
             self.stats.commander_handovers = guard.handovers
+        guard.yielded = msg.frame_id == topics.BRAKE_FRAME_ID   # a brake gives way
         self.commander_wall = now
         self.new_command = self._commanded = True
         if not self.safe_stop:

@@ -279,6 +279,39 @@ def test_a_node_whose_law_fails_brakes_through_the_command_topic(node):
 
 
 @pytest.mark.ros
+def test_a_deactivated_node_brakes_until_another_controller_commands(node):
+    """Deactivated, a task-space controller answers every state with its brake (marked
+    frame_id "brake": the plant follows another expected controller at once), not with its
+    last command and not with silence (a forward_command_controller would hold the last
+    command forever); another controller's command ends it; activated again, the law
+    commands."""
+    moving = {"position": (3.0, -2.4)}
+    node._on_joint_state(state(0, **moving), GID_A)
+    law = deserialize_message(node.published[-1], JointState)
+    assert law.header.frame_id == ""
+    node.trigger_deactivate()
+    assert not node.active
+    vel = JointState(name=["joint1", "joint2"], position=[3.0, -2.4], velocity=[0.5, -0.5])
+    for k in range(1, 4):
+        vel.header.stamp.sec, vel.header.stamp.nanosec = 7, k * 1_000_000
+        node._on_joint_state(serialize_message(vel), GID_A)
+    brakes = [deserialize_message(m, JointState) for m in node.published[1:]]
+    assert len(brakes) == 3 and all(b.header.frame_id == topics.BRAKE_FRAME_ID for b in brakes)
+    assert all(np.all(np.isfinite(b.effort)) for b in brakes)
+    assert not np.allclose(brakes[-1].effort, law.effort)
+    node.out.seen(node.published[-1])                # its own brake: braking goes on
+    node._on_joint_state(state(4, **moving), GID_A)
+    assert len(node.published) == 5
+    node.out.seen(serialize_message(JointState(name=["joint1", "joint2"],
+                                                       effort=[1.0, 2.0])))
+    node._on_joint_state(state(5, **moving), GID_A)           # another commands: silent
+    assert len(node.published) == 5
+    node.trigger_activate()
+    node._on_joint_state(state(6, **moving), GID_A)
+    assert deserialize_message(node.published[-1], JointState).header.frame_id == ""
+
+
+@pytest.mark.ros
 def test_an_oversized_joint_state_is_dropped_unparsed(node, monkeypatch):
     """One 10 MB JointState (640 000 names, as in the issue: the reader spent 1.8 s on it):
     dropped on its length, never parsed; as the sender-aware subscription hands it over
@@ -352,11 +385,13 @@ def test_a_node_behind_its_plant_answers_only_the_newest_state(node):
 
 @pytest.mark.ros
 def test_an_inactive_node_reads_one_state_and_answers_the_newest_at_activation(node, monkeypatch):
-    """Inactive (a live switch's second scheme): the first state is read (the law's time
-    origin), the later ones of that source are only kept, not deserialised; no command
-    while inactive; at activation the newest is read and answered."""
+    """Inactive (a live switch's second scheme, or a deactivated one whose brake another
+    controller relieved): the first state is read (the law's time origin), the later ones
+    of that source are only kept, not deserialised; no command while inactive; at
+    activation the newest is read and answered."""
     node.trigger_deactivate()
-    assert not node.active
+    node.out.seen(serialize_message(JointState(name=["joint1", "joint2"], effort=[1.0, 2.0])))
+    assert not node.active and not node.out.braking
     reads = []
     read = node.inputs.read_state
     monkeypatch.setattr(node.inputs, "read_state", lambda data: reads.append(data) or read(data))

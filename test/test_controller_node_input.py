@@ -55,7 +55,7 @@ def test_unreadable_bytes_are_ignored_and_the_next_state_answered(node):
     msg.header.stamp.sec, msg.header.stamp.nanosec = 7, 5_000_000
     node._on_joint_state(serialize_message(msg))
     assert node.inputs.answered
-    command = deserialize_message(node._command_bytes, JointState)
+    command = deserialize_message(node.out.last, JointState)
     assert (command.header.stamp.sec, command.header.stamp.nanosec) == (7, 5_000_000)
     assert list(command.name) == ["joint1", "joint2"] and len(command.effort) == 2
     assert np.isfinite(command.effort).all() and not command.position
@@ -111,7 +111,7 @@ def test_a_lockstep_state_before_the_plants_interface_is_answered_once_it_comes(
     assert not node.inputs.answered
     node.plant_interface.on_interface(String(data="effort"))
     assert node.inputs.answered
-    command = deserialize_message(node._command_bytes, JointState)
+    command = deserialize_message(node.out.last, JointState)
     assert (command.header.stamp.sec, command.header.stamp.nanosec) == (0, 0)
 
 

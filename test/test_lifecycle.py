@@ -168,8 +168,11 @@ def test_live_switch_lockstep(tmp_path):
     lines: list[str] = []
     analyse(result, progress=lines.append)               # what cr_session prints, and plots
     assert any("plots:" in line for line in lines)
-    # lockstep answers every state: the switch costs wall time, not simulated cycles
-    assert len(session.joint_commands.time) == len(session.joint_states.time) == 2000
+    # lockstep answers every state: the switch costs wall time, not simulated cycles; the
+    # first controller brakes from its deactivation until the second commands (a few cycles
+    # in which both answered the same states: the plant obeyed the second)
+    extra = len(session.joint_commands.time) - len(session.joint_states.time)
+    assert len(session.joint_states.time) == 2000 and 0 <= extra <= 5
 
 
 @pytest.mark.ros

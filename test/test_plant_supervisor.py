@@ -12,6 +12,7 @@ import pytest
 from plant_harness import Log
 
 from cr_control import offline
+from cr_control.core import topics
 from cr_control.experiments import evaluate
 from cr_sim.loop_stats import (
     SAFE_STOP_CONTACT_FORCE,
@@ -37,8 +38,9 @@ DEFAULTS = {p.name: p.default for p in NODE_PARAMETERS}
 class Command:
     """A command's fields, as the node reads them from a JointState."""
 
-    def __init__(self, effort=(), names=NAMES, position=()):
+    def __init__(self, effort=(), names=NAMES, position=(), frame_id=""):
         self.name, self.effort, self.position = tuple(names), tuple(effort), tuple(position)
+        self.frame_id = frame_id
 
 
 def supervisor(lockstep: bool = False, limits: bool = True, **kwargs):
@@ -110,6 +112,23 @@ def test_one_commander_until_it_is_silent_for_the_handover_cycles():
     assert log.count("commands from a publisher unknown to the graph (gid 4242") == 1
     assert log.count("refused unread") == 1 and log.count("handover: commands now from") == 1
     assert not command(sup, A, effort=[3.0, 3.0]) and sup.command.tolist() == [2.0, 2.0]
+
+
+def test_a_commander_that_brakes_gives_way_at_once():
+    """A controller deactivated in a live switch brakes (frame_id "brake"): the next expected
+    commander is followed from its first valid command, without the silence; a normal
+    command of the followed one takes the way back."""
+    sup, log = supervisor(limits=False, handover_cycles=50)
+    sup.tick(0.0)
+    assert command(sup, A, effort=[1.0, 1.0])
+    assert not command(sup, B, effort=[2.0, 2.0])          # A commands: B refused
+    assert command(sup, A, effort=[0.5, 0.5], frame_id=topics.BRAKE_FRAME_ID)
+    assert sup.command.tolist() == [0.5, 0.5]                 # the brake is applied...
+    assert command(sup, B, effort=[2.0, 2.0])                 # ...until B's first command
+    assert sup.commander == B and sup.command.tolist() == [2.0, 2.0]
+    assert not command(sup, A, effort=[0.4, 0.4], frame_id=topics.BRAKE_FRAME_ID)
+    assert log.count("gave way (handover 1)") == 1
+    assert command(sup, B, effort=[2.0, 2.0]) and not sup.guard.yielded
 
 
 def test_lockstep_counts_the_silence_in_periods_of_wall_time():

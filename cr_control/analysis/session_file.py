@@ -238,11 +238,15 @@ class _Rows:
         self.values = array("d")
         self.backwards = 0
         self.repeated = 0
+        self._last: float | None = None      # the last counted time
 
-    def add(self, time: float, row: Sequence[float]) -> None:
-        if self.time:
-            self.backwards += time < self.time[-1]
-            self.repeated += time == self.time[-1]
+    def add(self, time: float, row: Sequence[float], counted: bool = True) -> None:
+        """A row; ``counted`` False: its time is neither judged nor judged against."""
+        if counted:
+            if self._last is not None:
+                self.backwards += time < self._last
+                self.repeated += time == self._last
+            self._last = time
         self.time.append(time)
         self.values.extend(row)
 
@@ -293,7 +297,9 @@ class _JointTopic:
                 for column, value in zip(columns, values, strict=True):
                     if column is not None:
                         row[k * n + column] = value
-        self.rows.add(_stamp(msg), row)
+        # a brake that gave way (a controller deactivated in a live switch) answers the
+        # same states as the controller that took over: not a second loop's stamps
+        self.rows.add(_stamp(msg), row, msg.header.frame_id != topics.BRAKE_FRAME_ID)
 
     def series(self) -> JointSeries:
         time, table = self.rows.sorted()

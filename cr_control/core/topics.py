@@ -16,6 +16,10 @@ from cr_control.core import cdr
 JOINT_STATES = "/joint_states"
 WRENCH = "/force_torque_sensor_broadcaster/wrench"
 JOINT_COMMANDS = "/joint_commands"
+#: A /joint_commands message whose header.frame_id is this is a controller's brake (it was
+#: deactivated, or gave up): it gives way, and the plant follows another expected commander
+#: from that one's first valid command (a live switch, make before break).
+BRAKE_FRAME_ID = "brake"
 CLOCK = "/clock"
 PLANT_TIMING = "/plant/timing"
 PARAMETER_EVENTS = "/parameter_events"

@@ -50,7 +50,11 @@ A failing law: while :attr:`Controller.commanding` is False (its output failed f
 than ``max_bad_cycles`` cycles in a row, or a failed start check) a scheme with a braking
 command publishes that every cycle (a real robot holds the last command forever); a
 scheme without one publishes nothing, so the plant's watchdog brakes;
-``commands_stopped`` is 1.
+``commands_stopped`` is 1. Deactivated, a scheme with a braking command answers every state
+with it (and publishes nothing else) until it is activated again. Brakes go out with
+header.frame_id ``brake`` (:data:`cr_control.core.topics.BRAKE_FRAME_ID`): they give way,
+and the plant follows another expected controller from its first command (a live switch
+is then make before break: the first controller brakes until the second commands).
 """
 
 from __future__ import annotations
@@ -72,6 +76,7 @@ from std_srvs.srv import Trigger
 from cr_control.core import cdr, topics
 from cr_control.core.rate_limited_log import RateLimitedLog, logger_emit
 from cr_control.nodes import discovery_settle, sender_aware
+from cr_control.nodes.command_out import CommandOut
 from cr_control.nodes.diagnostics import ControllerDiagnostics
 from cr_control.nodes.lockstep import ReaderPacer
 from cr_control.nodes.markers import ControllerMarkers
@@ -179,10 +184,9 @@ class ControllerNode(LifecycleNode):
         self._pacer = (ReaderPacer(self, [self.command_pub, self.forward_pub, self.reference_pub,
                                           self.status_pub]) if values["lockstep"] else None)
         # Outgoing messages, built once as CDR bytes and refilled in place every cycle.
-        field = "position" if self.controller.command_interface == "position" else "effort"
-        self._command = cdr.Writer(cdr.joint_state, name=self.joint_names, **{field: n})
-        self._command_out = self._command.array(field)
-        self._command_bytes = b""                         # the last command published
+        self.out = CommandOut(self, self.command_pub, self.joint_names,
+                              self.controller.command_interface, self._relieved)
+        self._law_active = False                          # the lifecycle state "active"
         self._forward = cdr.Writer(cdr.float64_multi_array, data=n)
         self._forward_out = self._forward.array("data")
         self._reference = topics.labelled_writer(self.controller.reference_fields)
@@ -230,8 +234,8 @@ class ControllerNode(LifecycleNode):
     # -- lifecycle (module docstring) ---------------------------------------------------
     @property
     def active(self) -> bool:
-        """Lifecycle state "active": states are answered."""
-        return self.inputs.active
+        """Lifecycle state "active": states are answered by the law."""
+        return self._law_active
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Everything the law needs was made and checked at start-up: nothing to do."""
@@ -244,6 +248,8 @@ class ControllerNode(LifecycleNode):
         relative = bool(self.controller.values.get("reference_relative", False))
         self.controller.reset(keep_time=not relative)
         self.activations += 1
+        self.out.commanding()
+        self._law_active = True
         self.get_logger().info(f"{self.scheme}: active, the law starts from the current state"
                                + (" (its reference restarts here)" if relative else ""))
         held = self.inputs.activate()
@@ -252,16 +258,25 @@ class ControllerNode(LifecycleNode):
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Stop answering states: no command is published while inactive."""
-        self.inputs.active = False
-        self.get_logger().info(f"{self.scheme}: inactive, no command is published")
+        """The law stops: its brake answers the states from now on, where the scheme has
+        one; else no command is published (the plant's watchdog brakes)."""
+        self._law_active = False
+        braking = self.inputs.active = self.controller.brakes
+        self.get_logger().info(f"{self.scheme}: inactive, " + (
+            "braking until another controller commands" if braking else "no command is published"))
+        if braking:
+            self.out.brake_until_relieved()
         return super().on_deactivate(state)
+
+    def _relieved(self) -> None:
+        """Another controller commands: the deactivated node reads no more states."""
+        self.inputs.active = False
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.inputs.active = False
+        self.inputs.active = self._law_active = self.out.braking = False
         return TransitionCallbackReturn.SUCCESS
 
     # -- parameters -----------------------------------------------------------------
@@ -343,22 +358,24 @@ class ControllerNode(LifecycleNode):
                                getattr(self._state_sub, "newer_queued", False))
         if verdict != ANSWER:
             if verdict == REPEAT and self._publishes:
-                self.command_pub.publish(self._command_bytes)  # a repeated state: same answer
+                self.out.repeat()                              # a repeated state: same answer
             elif verdict == OBSERVE:
                 self.controller.observe(inputs.t)              # the law's time origin
             return
         t, stamp = inputs.t, inputs.stamp
+        if not self._law_active:           # deactivated: the brake until relieved, nothing else
+            brake = self.controller.braking(inputs.position, inputs.velocity)
+            if brake is not None:
+                self.out.publish(brake, stamp, brake=True)
+            return
         compute_start = time.perf_counter()
         out = self.controller.step(t, inputs.position, inputs.velocity,
                                    inputs.wrench if self.controller_reads_wrench else inputs.force)
 
         # -- messages out (timed; reported in the next published status) --
         out_start = time.perf_counter()
-        self._command.set_stamp(*stamp)
-        self._command_out[:] = out.command
-        self._command_bytes = self._command.message()
         if self._publishes:     # else the plant's watchdog brakes (module docstring)
-            self.command_pub.publish(self._command_bytes)
+            self.out.publish(out.command, stamp, brake=not self.controller.commanding)
             if self.forward_pub is not None:
                 self._forward_out[:] = out.command
                 self.forward_pub.publish(self._forward.message())

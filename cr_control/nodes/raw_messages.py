@@ -58,6 +58,19 @@ def joint_state_names(data: bytes) -> int | None:
     return struct.unpack_from(endian + "I", data, at)[0]
 
 
+def joint_state_frame_id(data: bytes) -> str | None:
+    """A plain-CDR JointState's header.frame_id, read without the rest of the message; None
+    if ``data`` cannot say."""
+    endian = cdr.ENDIAN.get(bytes(data[:2]))
+    if endian is None or len(data) < cdr.HEADER + 12:
+        return None
+    length = struct.unpack_from(endian + "I", data, cdr.HEADER + 8)[0]
+    end = cdr.HEADER + 12 + length
+    if length < 1 or end > len(data):
+        return None
+    return bytes(data[cdr.HEADER + 12:end - 1]).decode("utf-8", "replace")
+
+
 #: The largest geometry_msgs/WrenchStamped (frame_id of MAX_NAME_BYTES).
 WRENCH_MAX_BYTES = cdr.HEADER + 8 + _string_bytes(MAX_NAME_BYTES) + 4 + 6 * 8 + 4
 #: The largest std_msgs/Float64MultiArray a node reads (the plant's labelled sensors: a
@@ -72,6 +85,7 @@ class JointStateFields(NamedTuple):
     position: tuple[float, ...]
     velocity: tuple[float, ...]
     effort: tuple[float, ...]
+    frame_id: str = ""
 
 
 class WrenchFields(NamedTuple):
@@ -122,12 +136,13 @@ class JointStateReader(_RawReader):
     def _from_items(self, items: tuple, shape: cdr.Shape) -> JointStateFields:
         s = shape.slices
         return JointStateFields(items[0], items[1], shape.strings["name"], items[s["position"]],
-                                items[s["velocity"]], items[s["effort"]])
+                                items[s["velocity"]], items[s["effort"]],
+                                shape.strings["frame_id"][0])
 
     def _from_message(self, msg: JointState) -> JointStateFields:
         stamp = msg.header.stamp
         return JointStateFields(stamp.sec, stamp.nanosec, tuple(msg.name), tuple(msg.position),
-                                tuple(msg.velocity), tuple(msg.effort))
+                                tuple(msg.velocity), tuple(msg.effort), msg.header.frame_id)
 
 
 class WrenchReader(_RawReader):

@@ -457,13 +457,21 @@ class Controller(ABC):
         """True if the scheme outputs a braking command while it does not command."""
         return False
 
-    def _brake(self, out: ControlOutput, q: np.ndarray, v: np.ndarray) -> None:
-        """Replace this cycle's command by the braking command (where the scheme has one)."""
+    def braking(self, q: np.ndarray, v: np.ndarray) -> np.ndarray | None:
+        """The braking command at (q, q') clipped like a command (a deactivated node
+        publishes it); None where the scheme has none or it is not finite."""
         brake = self.brake_command(q, v) if self.brakes else None
         if brake is None or not np.all(np.isfinite(brake)):
-            return
+            return None
         limit = np.minimum(self.values["max_effort"], self.command_limits)
-        out.command[:] = np.clip(brake, -limit, limit)
+        return np.clip(brake, -limit, limit)
+
+    def _brake(self, out: ControlOutput, q: np.ndarray, v: np.ndarray) -> None:
+        """Replace this cycle's command by the braking command (where the scheme has one)."""
+        brake = self.braking(q, v)
+        if brake is None:
+            return
+        out.command[:] = brake
         if len(self._command_slots) == self.n_joints:
             out.status[self._command_slots] = out.command
 

@@ -22,7 +22,10 @@ The rule (one per topic, stated in docs/safety.md):
 3. **One at a time.** Once one publisher is followed, every other one's messages are
    refused unread until the followed one has delivered nothing for ``silence`` (a
    restarted plant, a switched controller): the next valid message of an expected
-   publisher is then followed (a handover).
+   publisher is then followed (a handover). A followed publisher may give way
+   (:attr:`SingleSource.yielded`, set by the caller from its messages: a deactivated
+   controller's brake): the next valid message of an expected publisher is then followed
+   at once, without the silence.
 
 Each refusal is counted (:attr:`SingleSource.refused`, of which :attr:`unexpected` by
 rule 2) and logged, rate-limited (:class:`~cr_control.core.rate_limited_log.RateLimitedLog`).
@@ -87,6 +90,8 @@ class SingleSource:
         self.unexpected = 0
         #: Times another publisher was followed after the followed one's silence.
         self.handovers = 0
+        #: The followed publisher gives way (module docstring, rule 3): set by the caller.
+        self.yielded = False
         self._names: dict[bytes, str] = {}
         self._looked_up: dict[bytes, float] = {}
 
@@ -101,7 +106,7 @@ class SingleSource:
         publisher cannot be known here) is admitted: the caller said so once at start."""
         if gid == self.source or not gid:
             return True
-        if self.source is not None and now - self.last_heard < self.silence:
+        if self.source is not None and now - self.last_heard < self.silence and not self.yielded:
             self._refuse("foreign", gid, lambda: (
                 f"following {self.describe(self.source)}; another is followed only after "
                 f"{self.silence:g} {self.unit} without a valid message from it"))
@@ -119,7 +124,7 @@ class SingleSource:
     def heard(self, gid: bytes | None, now: float) -> None:
         """A valid message of ``gid`` (admitted): follow it if not followed yet."""
         if gid != self.source and gid:
-            previous, self.source = self.source, gid
+            previous, self.source, self.yielded = self.source, gid, False
             if previous is None:
                 self.log(f"{self.topic} follow", "info",
                          lambda: f"{self.topic}: following {self.describe(gid)}")
@@ -128,8 +133,10 @@ class SingleSource:
                 silent = now - self.last_heard
                 self.log(f"{self.topic} handover", "warn", lambda: (
                     f"{self.topic}: handover: {self.what} now from {self.describe(gid)}; "
-                    f"{self.describe(previous)} delivered nothing for {silent:.3g} "
-                    f"{self.unit} (handover {self.handovers})"))
+                    f"{self.describe(previous)} " + (
+                        "gave way" if silent < self.silence else
+                        f"delivered nothing for {silent:.3g} {self.unit}")
+                    + f" (handover {self.handovers})"))
         self.last_heard = now
 
     def silent_for(self, now: float) -> float:

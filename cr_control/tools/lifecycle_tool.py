@@ -12,10 +12,14 @@ active at start).
 
 ``switch`` is a live change of controllers (``cr_session --switch-to`` runs it): it
 configures the second node if needed, waits until the plant's state is stamped ``--at``
-seconds after the first state it saw, deactivates the first, waits ``--handover`` seconds
-(the plant follows one commander and takes another only after the first has been silent
-for its ``command_handover_cycles``, 50 ms by default) and activates the second, which
-starts its law from the state it holds. Start it before the plant runs: its clock starts
+seconds after the first state it saw, deactivates the first and activates the second,
+which starts its law from the state it holds. Deactivated, a controller with a brake (the
+task-space schemes) answers the states with it, marked as giving way, and the plant
+follows the second from its first command: make before break, the robot never left with
+a stale command. A controller without a brake stops commanding: the plant takes another
+only after the first has been silent for its ``command_handover_cycles`` (50 ms by
+default), so ``--handover`` (seconds between the two transitions, default 0) should then
+be at least that. Start it before the plant runs: its clock starts
 with the first state it sees. Node names and ``--domain-id``/``--timeout`` as in cr_param.
 Exit status: 0 done, 1 a transition refused, 2 usage or connection error.
 """
@@ -39,11 +43,9 @@ from cr_control.tools.param_tool import (
 
 #: The transitions ``set`` takes (their labels in the standard lifecycle state machine).
 TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown")
-#: Default of ``--handover``: the plant's command_handover_cycles (50) at 1 kHz. The wait
-#: starts when the first node has answered that it stopped, so the plant has seen it
-#: silent at least this long when the second one's first command arrives (a real-time
-#: plant runs no faster than 1 kHz). The watchdog (100 cycles) bounds the whole gap.
-HANDOVER_S = 0.05
+#: Default of ``--handover``: none, the first controller brakes and gives way (module
+#: docstring). 0.05 s (the plant's command_handover_cycles at 1 kHz) for one without a brake.
+HANDOVER_S = 0.0
 
 
 class TransitionRefusedError(RuntimeError):
