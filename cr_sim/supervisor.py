@@ -271,11 +271,19 @@ class PlantSupervisor:
         return True
 
     def hold(self, command: np.ndarray) -> None:
-        """Hold ``command`` as given (the offline loop: its controller's own output, no
-        checks), unless in a safe stop."""
+        """Hold ``command`` (the offline loop: its controller's own output, in the plant's
+        joint order), clipped into the command limits where there are any (as
+        :meth:`accept` does; a non-finite one leaves the last), unless in a safe stop."""
         self._commanded = True
-        if not self.safe_stop:
-            self.command = command
+        if self.safe_stop:
+            return
+        if self.limiter is not None:
+            limited = self.limiter.limit(command, self._command_list)
+            self.stats.commands_clipped = self.limiter.clipped
+            if limited is None:
+                return
+            self._command_list, command = limited, np.array(limited)
+        self.command = command
 
     def _reorder(self, names: tuple[str, ...], values: Sequence[float]) -> list[float] | None:
         """``values`` in the plant's joint order if ``names`` are exactly its joints."""

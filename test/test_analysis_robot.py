@@ -37,10 +37,7 @@ def recording(tmp_path_factory) -> Path:
     cfg = SessionConfig(scheme=SCHEME, duration=DURATION, mode="lockstep",
                         out=tmp_path_factory.mktemp("robot"), domain_id=next_domain(),
                         name="run", robot=ROBOT, overrides=[
-                            "plant.ft_noise_std=[0.0, 0.0]",
-                            # the contact's one torque step (1.7 N m at 0.436 s) is not clipped
-                            # by the node's 1000 N m/s limit: the offline loop has none
-                            "plant.effort_rate_limit=1e6"])
+                            "plant.ft_noise_std=[0.0, 0.0]"])
     return Session(cfg, progress=lambda _: None).run().mcap
 
 

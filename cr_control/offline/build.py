@@ -10,7 +10,8 @@ from cr_control import robots
 from cr_control.offline.loop import OfflineRun, run
 from cr_control.schemes.controller import Controller
 from cr_control.schemes.registry import default_plant_overrides, default_scenario, make_controller
-from cr_sim.plants.base import Plant
+from cr_sim.plant_setup import NODE_PARAMETERS, command_limiter
+from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS, make_plant
 
 
@@ -49,11 +50,26 @@ def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any
                supervise: bool = True) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
     on ``robot``'s wiping task (see :func:`build_scheme`); ``period`` (s) defaults to 1 ms,
-    on a robot to its driver's rate (the plant's ``rate_hz``: 2 ms for a UR); ``supervise``
-    False: without the plant's reflexes (:func:`run`)."""
+    on a robot to its driver's rate (the plant's ``rate_hz``: 2 ms for a UR). The plant's
+    supervision, on a robot with the plant node's command limits (:func:`node_limiter`: its
+    effort bounds and libfranka's 1 kN m/s torque-rate limit, which a lockstep session
+    applies too); a thesis plant without them, as the thesis's simulations (its starts ask
+    ~20 N m within a cycle: a session of those opens the node's limits to match).
+    ``supervise`` False: without the plant's reflexes and limits (:func:`run`)."""
     controller, plant = build_scheme(scheme, controller_overrides, plant_overrides, robot)
-    return run(controller, plant, duration, robot_period(robot) if period is None else period,
-               hook, supervise)
+    period = robot_period(robot) if period is None else period
+    limiter = None if robot is None else node_limiter(plant, scheme, robot, plant_overrides, period)
+    return run(controller, plant, duration, period, hook, supervise, limiter)
+
+
+def node_limiter(plant: Plant, scheme: str, robot: str | None,
+                 plant_overrides: dict[str, Any] | None, period: float) -> CommandLimiter:
+    """The command limits the plant node would set for this run (its ``effort_limit`` and
+    ``effort_rate_limit``: defaults, the scheme's session settings, ``plant_overrides``)."""
+    settings = {p.name: p.default for p in NODE_PARAMETERS}
+    given = {**(default_plant_overrides(scheme) if robot is None else {}), **(plant_overrides or {})}
+    settings.update({k: v for k, v in given.items() if k in settings})
+    return command_limiter(plant, settings, period)
 
 
 def robot_period(robot: str | None) -> float:

@@ -3,11 +3,13 @@
 Bit-for-bit deterministic (same inputs, same numbers); equivalent to the plant's
 lockstep mode: the command computed from the state at t_k is held over [t_k, t_k+1).
 The plant is stepped through the plant node's own supervision
-(:class:`cr_sim.supervisor.PlantSupervisor`, as in lockstep without command limits): a
-reflex (contact force, joint velocity) engages the safe stop at the step a lockstep session
-would, the brakes act from then on (the controller's commands are still recorded, as a
-session records them), and the run says so (``safe_stop_reason``, ``safe_stop_at``,
-``safe_stop_text``). A run that trips no reflex is the loop without supervision, bit for bit.
+(:class:`cr_sim.supervisor.PlantSupervisor`, as in lockstep; with the node's command limits,
+effort bounds and torque-rate limit, where ``limiter`` gives them: :func:`.build.run_scheme`
+does, as the plant node would set them): a reflex (contact force, joint velocity) engages
+the safe stop at the step a lockstep session would, the brakes act from then on (the
+controller's commands are still recorded, as a session records them), and the run says so
+(``safe_stop_reason``, ``safe_stop_at``, ``safe_stop_text``). A run that trips no reflex and
+meets no limit is the loop without supervision, bit for bit.
 
 A controller that reads the whole wrench (``reads_wrench``: a wrist sensor to compensate)
 is given force and torque, as the node gives it a WrenchStamped's; the plant's true contact
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cr_control.schemes.controller import Controller
-from cr_sim.plants.base import Plant
+from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.supervisor import PlantSupervisor
 
 
@@ -59,9 +61,10 @@ class OfflineRun:
 
 def run(controller: Controller, plant: Plant, duration: float, period: float = 1e-3,
         hook: Callable[[int, float, Controller, Plant], None] | None = None,
-        supervise: bool = True) -> OfflineRun:
+        supervise: bool = True, limiter: CommandLimiter | None = None) -> OfflineRun:
     """Step ``plant`` and ``controller`` for ``duration`` s at ``period`` (module docstring);
-    ``supervise`` False: without the plant's supervision (no reflex, no brakes)."""
+    ``supervise`` False: without the plant's supervision (no reflex, no brakes, no limits);
+    ``limiter``: the plant node's command limits (None: none)."""
     steps = int(round(duration / period))
     n = len(plant.joint_names)
     n_command = len(plant.command_joints)
@@ -94,7 +97,7 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         "true_force": np.full((steps, 3), np.nan),
     }
     true_force = getattr(plant, "contact_force", None)
-    supervisor = PlantSupervisor(plant, period) if supervise else None
+    supervisor = PlantSupervisor(plant, period, limiter) if supervise else None
     for k in range(steps):
         m = plant.measurement()
         if hook is not None:

@@ -393,11 +393,11 @@ def impact_damping(g, s, m, dt):
 
 @njit(cache=True, error_model="numpy")
 def _chatter(g, s, force, f_d, dt, armed):
-    """The contact-stability monitor alone (module docstring)."""
+    """The contact-stability monitor alone (module docstring); with ``stability_monitor`` off
+    it measures (oscillation_rms, for the status and the start check's diagnosis) and
+    never reacts."""
     m = force.shape[0]
     o = _after_u(m)[7]
-    if g[_G_DIRECTION + m + 2] <= 0.0:               # stability_monitor off
-        return 1.0, 1.0
     u = s[_S_U:_S_U + m]
     if np.sum(u * u) > 0.0:
         x = -np.sum(u * force)
@@ -419,6 +419,8 @@ def _chatter(g, s, force, f_d, dt, armed):
     s[o], s[o + 1], s[o + 2] = x, y1, y2
     energy = s[o + 3] + dt / MONITOR_WINDOW_S * (y2 * y2 - s[o + 3])
     s[o + 3] = energy
+    if g[_G_DIRECTION + m + 2] <= 0.0:               # stability_monitor off: measured only
+        return 1.0, 1.0
     threshold = g[_G_DIRECTION + m + 3]
     k_min, d_max = g[_G_DIRECTION + m + 4], g[_G_DIRECTION + m + 5]
     k = s[o + 4]

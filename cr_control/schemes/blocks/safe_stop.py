@@ -70,12 +70,14 @@ class Mismatch:
 
 def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.ndarray,
                 joint_speed: np.ndarray, joint_names: list[str], velocity_limit: np.ndarray,
-                values: dict) -> Mismatch | None:
+                values: dict, contact_rms: float = 0.0) -> Mismatch | None:
     """The start check at controller time ``t`` (module docstring): None while it passes.
 
     ``tip_speed_error`` = r' - r_d' (base frame, the position axes), ``gravity`` the same
     axes of the gravity vector, ``joint_speed`` q' and ``velocity_limit`` (inf: none) in
-    ``joint_names`` order."""
+    ``joint_names`` order; ``contact_rms`` the contact-stability monitor's oscillation RMS
+    (N): above its ``stability_threshold`` the tip bounces on a contact, and the cause named
+    is that, not gravity."""
     window = values["start_check_time"]
     if not 0.0 <= t < window:
         return None
@@ -94,7 +96,11 @@ def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.
     if fast:
         _, name, w, lim = max(fast)
         what += f", {name} at {w:+.3g} rad/s (limit {lim:g})"
-    if along < -0.5 * speed and not robot_adds:
+    if contact_rms > values.get("stability_threshold", math.inf):
+        cause = (f"the contact force oscillates ({contact_rms:.3g} N RMS): the contact is too "
+                 "stiff for these gains; keep stability_monitor on, or lower the gains")
+        holds = not robot_adds
+    elif along < -0.5 * speed and not robot_adds:
         cause = ("rising against gravity: the robot likely compensates gravity itself; set "
                  "robot_compensates_gravity: true")
         holds = False

@@ -287,6 +287,7 @@ class TaskSpaceController(Controller):
         self._brake_holds_gravity = not values["robot_compensates_gravity"]
         axes = self.model.position_axes
         self._i_tip_v = [self._status.index(f"v_{a}") - 1 for a in axes]
+        self._i_oscillation = self._status.index("oscillation_rms") - 1
         self._i_ref_v = [self.reference_fields.index(f"v_d_{a}") - 1 for a in axes]
         self._gravity_axes = np.array([values["gravity"]["xyz".index(a)] for a in axes])
         self._velocity_limit = self.model.limits[2 * n:3 * n].copy()
@@ -499,7 +500,7 @@ class TaskSpaceController(Controller):
         error = views.status[self._i_tip_v] - views.reference[self._i_ref_v]
         mismatch = safe_stop.start_check(self.scheme, t, error, self._gravity_axes, v,
                                          list(self.model.joint_names), self._velocity_limit,
-                                         self.values)
+                                         self.values, views.status[self._i_oscillation])
         if mismatch is not None:
             self._brake_holds_gravity = mismatch.brake_holds_gravity
             self.give_up(mismatch.message)
