@@ -15,7 +15,8 @@ controller is the ``adaptive_impedance`` executable with the Panda's params file
 
 - every array has 7 finite values and, mapped by the forward controller's joint order,
   equals the controller's /joint_commands efforts of the same cycle (same stamp);
-- 2 s of the closed loop reproduce the offline loop (``run_scheme(..., robot="panda_ft")``):
+- 2 s of the closed loop reproduce the offline loop (``offline.run`` on the panda_ft
+  scheme, without the plant node's command limits: a forward_command_controller has none):
   same plant, same law, same stamps (integer nanoseconds), float64 carried losslessly, so
   the same floating-point operations: states, forces and torques agree bit for bit (0
   measured; asserted to 1e-12). Anything a lost or reordered message changes is far above
@@ -45,7 +46,7 @@ from std_msgs.msg import Float64MultiArray
 from cr_control import robots
 from cr_control.core import topics
 from cr_control.core.paths import config_file
-from cr_control.offline import run_scheme
+from cr_control.offline import build_scheme, run
 from cr_control.schemes.blocks.wrist_sensor import ZERO_START_WINDOW_S
 from cr_sim.plants.registry import make_plant
 
@@ -219,7 +220,7 @@ def test_a_controller_drives_a_ros2_control_robot(ros_env, probe):
     assert np.abs(arrays).max() > 1.0          # real torques (gravity alone is tens of N m)
 
     # the closed loop is the offline loop, stamp for stamp
-    reference = run_scheme("adaptive_impedance", CYCLES * PERIOD, robot="panda_ft")
+    reference = run(*build_scheme("adaptive_impedance", robot="panda_ft"), CYCLES * PERIOD, PERIOD)
     loop = robot.rows[:CYCLES]
     t = np.array([m.time for _, m, _ in loop])
     q = np.array([m.position for _, m, _ in loop])
