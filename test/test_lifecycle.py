@@ -121,6 +121,10 @@ def test_cr_lifecycle_bad_input(ros_env):
 
 
 # -- the live switch ------------------------------------------------------------------------
+#: Lockstep cycles a switch may leave to the first controller's brake (0.1 s of the 2 s run;
+#: measured 1, and 2 commands that both controllers answered).
+BRAKE_CYCLES_MAX = 100
+
 def switch_session(tmp_path, mode: str, duration: float, at: float):
     cfg = SessionConfig(scheme=SWITCH[0], switch_to=SWITCH[1], switch_at=at, duration=duration,
                         mode=mode, out=tmp_path, domain_id=next_domain(), name="switch")
@@ -164,7 +168,11 @@ def test_live_switch_lockstep(tmp_path):
     assert abs(m["switch_to_robust_adaptive_impedance_at_s"] - 1.0) < 0.2
     # two controllers, two /joint_commands publishers: expected, not cross-talk
     assert m["publishers_joint_commands"] == 2 and m["data_warnings"] == 0
-    assert len(session.status["stamp"]) == 2000 and np.all(np.diff(session.status["stamp"]) > 0)
+    # the cycles the first controller's brake answered (from its deactivation to the second's
+    # first command: 1 here, more on a loaded machine, where the lockstep loop runs on with
+    # the brake for the wall time of the activation) have no law's status
+    assert 0 <= 2000 - len(session.status["stamp"]) <= BRAKE_CYCLES_MAX
+    assert np.all(np.diff(session.status["stamp"]) > 0)
     lines: list[str] = []
     analyse(result, progress=lines.append)               # what cr_session prints, and plots
     assert any("plots:" in line for line in lines)
@@ -172,7 +180,7 @@ def test_live_switch_lockstep(tmp_path):
     # first controller brakes from its deactivation until the second commands (a few cycles
     # in which both answered the same states: the plant obeyed the second)
     extra = len(session.joint_commands.time) - len(session.joint_states.time)
-    assert len(session.joint_states.time) == 2000 and 0 <= extra <= 5
+    assert len(session.joint_states.time) == 2000 and 0 <= extra <= BRAKE_CYCLES_MAX
 
 
 @pytest.mark.ros
