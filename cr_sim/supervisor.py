@@ -248,8 +248,7 @@ class PlantSupervisor:
                     f"{len(msg.position)} positions; the plant's commanded joints are "
                     f"{list(self.command_names)}"))
         if self.limiter is not None:
-            limited = self.limiter.limit(values, self._command_list)
-            self.stats.commands_clipped = self.limiter.clipped
+            limited = self._clipped(values)
         else:
             limited = [float(x) for x in values]
             limited = limited if all(map(math.isfinite, limited)) else None
@@ -278,12 +277,18 @@ class PlantSupervisor:
         if self.safe_stop:
             return
         if self.limiter is not None:
-            limited = self.limiter.limit(command, self._command_list)
-            self.stats.commands_clipped = self.limiter.clipped
+            limited = self._clipped(command)
             if limited is None:
                 return
             self._command_list, command = limited, np.array(limited)
         self.command = command
+
+    def _clipped(self, values: Sequence[float]) -> list[float] | None:
+        """``values`` clipped into the limiter's bounds and rate from the last applied command
+        (clips counted in ``commands_clipped``); None if one is not finite."""
+        limited = self.limiter.limit(values, self._command_list)
+        self.stats.commands_clipped = self.limiter.clipped
+        return limited
 
     def _reorder(self, names: tuple[str, ...], values: Sequence[float]) -> list[float] | None:
         """``values`` in the plant's joint order if ``names`` are exactly its joints."""

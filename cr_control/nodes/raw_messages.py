@@ -43,14 +43,24 @@ def joint_state_max_bytes(joints: int = MAX_JOINTS, name_bytes: int = MAX_NAME_B
             + 3 * doubles + 4)
 
 
+def _frame_id_span(data: bytes) -> tuple[str, int] | None:
+    """(byte order, length with its NUL) of a plain-CDR JointState's header.frame_id, one
+    uint32 read; None if ``data`` cannot say (too short, or not plain CDR). Its bytes start
+    at HEADER + 12."""
+    endian = cdr.ENDIAN.get(bytes(data[:2]))
+    if endian is None or len(data) < cdr.HEADER + 12:
+        return None
+    return endian, struct.unpack_from(endian + "I", data, cdr.HEADER + 8)[0]
+
+
 def joint_state_names(data: bytes) -> int | None:
     """How many names a plain-CDR JointState says it has (two uint32 read: frame_id's length
     and the name count), without reading the message; None if ``data`` cannot say (too
     short, or not plain CDR)."""
-    endian = cdr.ENDIAN.get(bytes(data[:2]))
-    if endian is None or len(data) < cdr.HEADER + 12:
+    span = _frame_id_span(data)
+    if span is None:
         return None
-    frame_id = struct.unpack_from(endian + "I", data, cdr.HEADER + 8)[0]
+    endian, frame_id = span
     at = cdr.HEADER + 12 + frame_id
     at += -(at - cdr.HEADER) % 4
     if at + 4 > len(data):
@@ -61,14 +71,10 @@ def joint_state_names(data: bytes) -> int | None:
 def joint_state_frame_id(data: bytes) -> str | None:
     """A plain-CDR JointState's header.frame_id, read without the rest of the message; None
     if ``data`` cannot say."""
-    endian = cdr.ENDIAN.get(bytes(data[:2]))
-    if endian is None or len(data) < cdr.HEADER + 12:
+    span = _frame_id_span(data)
+    if span is None or span[1] < 1 or cdr.HEADER + 12 + span[1] > len(data):
         return None
-    length = struct.unpack_from(endian + "I", data, cdr.HEADER + 8)[0]
-    end = cdr.HEADER + 12 + length
-    if length < 1 or end > len(data):
-        return None
-    return bytes(data[cdr.HEADER + 12:end - 1]).decode("utf-8", "replace")
+    return bytes(data[cdr.HEADER + 12:cdr.HEADER + 11 + span[1]]).decode("utf-8", "replace")
 
 
 #: The largest geometry_msgs/WrenchStamped (frame_id of MAX_NAME_BYTES).
