@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -123,7 +122,6 @@ def test_second_session_on_the_same_domain_refuses(tmp_path):
         domain = int(line.split("ROS_DOMAIN_ID=")[1].split(",")[0])
         assert FIRST_DOMAIN <= domain < FIRST_DOMAIN + DOMAIN_SPAN
         for extra, extra_env in ((["--domain-id", str(domain)], {}), ([], {"ROS_DOMAIN_ID": str(domain)})):
-            start = time.monotonic()
             second = subprocess.run([*cmd, "--out", str(tmp_path / "b"), *extra],
                                     env={**env, **extra_env}, capture_output=True, text=True, timeout=60)
             assert second.returncode == 1 and "Traceback" not in second.stderr
@@ -131,7 +129,6 @@ def test_second_session_on_the_same_domain_refuses(tmp_path):
                 second.stderr.strip()], second.stderr                         # one line
             assert f"ROS_DOMAIN_ID {domain} is in use by another run" in second.stderr
             assert "refusing to start" in second.stderr
-            assert time.monotonic() - start < 30
             assert not (tmp_path / "b").exists()
         out, err = first.communicate(timeout=120)
         assert first.returncode == 0, err

@@ -25,6 +25,7 @@ import math
 import subprocess
 import sys
 import time
+import tracemalloc
 from dataclasses import replace
 from pathlib import Path
 
@@ -53,11 +54,9 @@ BASE, TIP = PANDA_BASE, PANDA_TIP
 
 
 def refusal(xml: str, base: str = BASE, tip: str = TIP) -> str:
-    """The one-line reason load_chain refuses ``xml`` with (asserting it does, fast)."""
-    start = time.monotonic()
+    """The one-line reason load_chain refuses ``xml`` with (asserting it does)."""
     with pytest.raises(RobotModelError) as info:
         load_chain(xml, "", base, tip)
-    assert time.monotonic() - start < 2.0
     message = str(info.value)
     assert "\n" not in message and message
     return message
@@ -157,9 +156,13 @@ def test_an_entity_expansion_is_refused_before_anything_expands_it():
            + PANDA[PANDA.index("<robot"):].replace("</robot>", "<gazebo>" + "&a;" * 1_000_000
                                                    + "</gazebo></robot>"))
     assert len(xml) < MAX_URDF_CHARS
-    start = time.monotonic()
-    assert "declares an entity" in refusal(xml)
-    assert time.monotonic() - start < 0.5
+    tracemalloc.start()
+    try:
+        assert "declares an entity" in refusal(xml)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 50 * 2**20, peak        # nothing expanded: the expansion alone is 250 MB
 
 
 def test_a_long_file_is_read_no_further_than_the_bound(tmp_path):
@@ -237,8 +240,7 @@ def test_the_plant_executable_exits_1_with_one_line(tmp_path, ros_env, case):
     elapsed = time.monotonic() - start
     line = error_line(proc)
     assert line.startswith("plant: refused to start: ") and reason[:60] in line, line
-    assert elapsed < 30.0, elapsed         # the start-up of a Python ROS node; no parsing
-    print(f"\n{case}: exit 1 in {elapsed:.1f} s: {line}")
+    print(f"\n{case}: exit 1 in {elapsed:.1f} s: {line}")   # a figure, not a verdict
 
 
 # -- no NaN leaves a plant -------------------------------------------------------------------
