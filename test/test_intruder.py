@@ -101,9 +101,8 @@ def test_an_intruder_present_before_the_loop_never_captures_it():
         # not for the intruder: 499 of 500 seen once on a fresh-clone CI run)
         assert run["sent"] >= CYCLES - MATCH_LAG and run["commands_foreign"] >= 1, where
         assert run["commands_refused"] == 0, where               # refused unread, not read
-        stamps = [stamp for stamp, _, _ in run["states"]]
-        assert (max(stamps) >= (CYCLES - 1) * 1_000_000
-                and len(set(stamps)) >= CYCLES - MATCH_LAG), where
+        # the intruder observes the loop; what it saw is compared, not when it began to see
+        assert len({stamp for stamp, _, _ in run["states"]}) >= CYCLES - MATCH_LAG, where
         speeds = np.abs([v for _, _, v in run["states"]])
         assert speeds.max() < 5.0, where                         # no 20 N m bang: 10 rad/s
         assert "following node '/plant'" in run["controller_out"], where
@@ -111,7 +110,12 @@ def test_an_intruder_present_before_the_loop_never_captures_it():
         runs.append(run)
         print(f"run {index}: intruder sent {run['sent']}, the plant refused "
               f"{run['commands_foreign']:.0f} unread; max |q'| {speeds.max():.3f} rad/s")
+    # lockstep: bit for bit, on the states both observers saw (either may have matched the
+    # plant's publisher a few states late, or missed the last state before the plant exited)
     first = {stamp: (q, v) for stamp, q, v in runs[0]["states"]}
-    for index, run in enumerate(runs[1:], 1):                   # lockstep: bit for bit
+    for index, run in enumerate(runs[1:], 1):
         other = {stamp: (q, v) for stamp, q, v in run["states"]}
-        assert other == first, f"run {index} differs from run 0"
+        both = first.keys() & other.keys()
+        assert len(both) >= CYCLES - 2 * MATCH_LAG, f"run {index} and run 0 share {len(both)} states"
+        differ = sorted(stamp for stamp in both if other[stamp] != first[stamp])
+        assert not differ, f"run {index} differs from run 0 at {len(differ)} states, first {differ[:3]}"
