@@ -97,7 +97,8 @@ def check_settings(settings: dict) -> None:
 
 def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimiter:
     """The plant's command limits: effort bounds (``effort_limit``, else the URDF's) and
-    the torque-rate limit; position plants: the URDF's position and velocity limits.
+    the torque-rate limit; position plants: the URDF's position and velocity limits; velocity
+    plants: the URDF's velocity limits and the plant's acceleration limits as their rate.
 
     A joint with no known effort limit (no URDF and none given) is left unbounded, with
     no rate limit either: the node warns at start (see :func:`unlimited_joints`).
@@ -106,6 +107,9 @@ def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimit
     n = len(plant.command_joints)
     if plant.command_interface == "position":
         return CommandLimiter(limits.lower, limits.upper, limits.velocity, period)
+    if plant.command_interface == "velocity":     # the velocity limits, the acceleration's as rate
+        acceleration = getattr(plant, "acceleration_limits", lambda: np.full(n, np.inf))()
+        return CommandLimiter(-limits.velocity, limits.velocity, acceleration, period)
     given = list(settings["effort_limit"])
     if len(given) not in (1, n):
         raise ParameterError(f"effort_limit needs 1 or {n} values, got {len(given)}")

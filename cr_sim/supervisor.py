@@ -78,6 +78,8 @@ FIRST_COMMAND_TIMEOUT_S = 30.0
 EXIT_ENDED = 3
 #: Exit code of a plant whose state or output became non-finite.
 EXIT_NON_FINITE = 1
+#: The JointState fields a command may carry, one per command interface.
+INTERFACE_FIELDS = ("position", "velocity", "effort")
 
 
 class Command(Protocol):
@@ -85,6 +87,7 @@ class Command(Protocol):
 
     name: tuple[str, ...]
     position: Sequence[float]
+    velocity: Sequence[float]
     effort: Sequence[float]
     frame_id: str
 
@@ -147,7 +150,10 @@ class PlantSupervisor:
         self.log = RateLimitedLog(self._emit)
         self.once = RateLimitedLog(self._emit, math.inf)
         self.command_names = tuple(plant.command_joints)
-        self._position_interface = plant.command_interface == "position"
+        #: The command's field the plant reads: position, velocity (a position or velocity
+        #: interface: cr_sim.plants.joint_servo) or effort.
+        self._field = (plant.command_interface if plant.command_interface in INTERFACE_FIELDS
+                       else "effort")
         #: The command held (applied at every step outside a safe stop).
         self.command = np.zeros(len(self.command_names)) if command is None else command
         self._command_list: list[float] | None = None     # last applied, for the rate limit
@@ -239,7 +245,7 @@ class PlantSupervisor:
         if it was valid (its publisher is then the commander)."""
         if msg is None:
             return self._refuse("not a readable JointState")
-        values = msg.position if self._position_interface else msg.effort
+        values = getattr(msg, self._field)
         if msg.name != self.command_names or len(values) != len(self.command_names):
             values = self._reorder(msg.name, values)
             if values is None:
@@ -304,13 +310,14 @@ class PlantSupervisor:
 
     def _wrong_field(self, msg: Command) -> str:
         """Why ``msg`` is not a command of the plant's interface ("" if it is one)."""
-        ours, theirs = (("positions", "efforts") if self._position_interface
-                        else ("efforts", "positions"))
-        given, other = ((msg.position, msg.effort) if self._position_interface
-                        else (msg.effort, msg.position))
-        if len(given) == 0 and len(other) > 0:
-            return f"it carries {theirs} but this plant takes {ours} (scenario {self.scenario})"
-        return ""
+        if len(getattr(msg, self._field)) > 0:
+            return ""
+        theirs = [field for field in INTERFACE_FIELDS if field != self._field
+                  and len(getattr(msg, field, ())) > 0]
+        if not theirs:
+            return ""
+        return (f"it carries {theirs[0]}s but this plant takes {self._field}s "
+                f"(scenario {self.scenario})")
 
     def _refuse(self, why: str) -> bool:
         self.stats.commands_refused += 1

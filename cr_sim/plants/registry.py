@@ -6,7 +6,7 @@ from collections.abc import Callable
 from typing import Any
 
 from cr_control.core.parameters import Param, resolve
-from cr_sim.plants import circular_surface, cmmsd, dynamic_constraint, urdf_surface
+from cr_sim.plants import circular_surface, cmmsd, dynamic_constraint, joint_servo, urdf_surface
 from cr_sim.plants import compliant_plane as compliant_plane_arm
 from cr_sim.plants import flexible_joint_surface as flexible_joint
 from cr_sim.plants import moving_object as moving_object_plant
@@ -21,6 +21,7 @@ SCENARIOS: dict[str, tuple[list[Param], Callable[[dict], Plant]]] = {
     cmmsd.NAME: (cmmsd.PARAMETERS, cmmsd.CMMSD),
     flexible_joint.NAME: (flexible_joint.PARAMETERS, flexible_joint.FlexibleJointSurface),
     urdf_surface.NAME: (urdf_surface.PARAMETERS, urdf_surface.URDFSurface),
+    joint_servo.NAME: (joint_servo.PARAMETERS, joint_servo.JointServoSurface),
 }
 
 
