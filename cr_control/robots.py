@@ -3,16 +3,17 @@
 A robot profile is its URDF (from example-robot-data, which `make demo ROBOT=...` and
 `make test` install: real kinematics and inertias), the chain's two links, a home pose and
 what the real robot's ROS 2 driver does, which the plant imitates: who compensates gravity
-and joint friction, the control rate, and where the wrench comes from.
+and joint friction, the control rate, the transport delay (the cycles after which the
+answer to a state acts: :attr:`Robot.command_delay_cycles`) and where the wrench comes from.
 
-========== ==================== ======= ======== ====== ====================================
-profile    driver               gravity friction rate   wrench
-========== ==================== ======= ======== ====== ====================================
-panda      franka_ros2          robot   --       1 kHz  estimate O_F_ext_hat_K: base, reaction
-panda_ft   franka_ros2 + F/T    robot   --       1 kHz  wrist sensor: flange, tool, bias
-ur5        ur_robot_driver      robot   robot    500 Hz TCP sensor: tool0, no payload, bias
-ur5_ft     ur_robot_driver + F/T robot  robot    500 Hz wrist sensor: flange, tool, bias
-========== ==================== ======= ======== ====== ====================================
+========== ==================== ======= ======== ====== ===== ================================
+profile    driver               gravity friction rate   delay wrench
+========== ==================== ======= ======== ====== ===== ================================
+panda      franka_ros2          robot   --       1 kHz  1 ms  estimate O_F_ext_hat_K: base, reaction
+panda_ft   franka_ros2 + F/T    robot   --       1 kHz  1 ms  wrist sensor: flange, tool, bias
+ur5        ur_robot_driver      robot   robot    500 Hz 2 ms  TCP sensor: tool0, no payload, bias
+ur5_ft     ur_robot_driver + F/T robot  robot    500 Hz 2 ms  wrist sensor: flange, tool, bias
+========== ==================== ======= ======== ====== ===== ================================
 
 The wiping task, the same for every profile and scheme: the table is a compliant plane
 touching the tool at the home pose (normal +z), and the tool keeps 10 N on it while
@@ -61,6 +62,15 @@ class Robot:
     wrench: str = "wrist"
     #: The guarded approach's speed (m/s): APPROACH.
     approach_speed: float = 0.03
+    #: The driver's transport delay (control periods): the command answering the state of
+    #: one cycle acts from the next cycle on (the plant node's ``command_delay_cycles``).
+    #: libfranka: the torque the user's callback returns for the state of a 1 kHz cycle is
+    #: applied in the next one (Franka Control Interface documentation, "Minimum system and
+    #: network requirements": round trip, the control loop's execution and the robot's
+    #: processing together within 1 ms) -> 1 cycle, 1 ms. ur_robot_driver's effort interface:
+    #: the torque answering a 500 Hz RTDE state is executed by the robot's next 2 ms control
+    #: step (ur_robot_driver's documentation, "Torque control") -> 1 cycle, 2 ms.
+    command_delay_cycles: int = 0
 
 
 #: Where a profile's wrench comes from:
@@ -84,7 +94,7 @@ _PANDA = dict(
            "ready pose", flange="panda_link8",
     driver="franka_ros2 (libfranka): effort interface, desired torques without gravity "
            "(libfranka adds g(q), no friction compensation), 1 kHz",
-    rate_hz=1000.0, robot_compensates_gravity=True)
+    rate_hz=1000.0, robot_compensates_gravity=True, command_delay_cycles=1)
 _UR5 = dict(
     urdf_file="package://example-robot-data/robots/ur_description/urdf/ur5_robot.urdf",
     base_link="base_link", tip_link="tool0",
@@ -94,7 +104,7 @@ _UR5 = dict(
     driver="ur_robot_driver >= 3.5.0 (PolyScope >= 5.23): effort interface, target torques "
            "without gravity; the robot also compensates joint friction; 500 Hz",
     rate_hz=500.0, robot_compensates_gravity=True, robot_compensates_friction=True,
-    approach_speed=0.015)
+    approach_speed=0.015, command_delay_cycles=1)
 
 ROBOTS = {
     "panda": Robot("panda", **_PANDA, wrench="estimated"),
@@ -231,6 +241,12 @@ def controller_wrench(r: Robot) -> dict[str, Any]:
     mass = 0.0 if r.wrench == "tcp" else SENSOR["tool_mass"]    # the robot removes the payload
     return {"sensor_frame": r.flange, "wrench_sign": 1, "tool_mass": mass,
             "tool_com": SENSOR["tool_com"], "zero_ft_at_start": True}
+
+
+def plant_node_values(r: Robot) -> dict[str, Any]:
+    """The plant node's settings that imitate the profile's driver: its rate and transport
+    delay (:data:`Robot.command_delay_cycles`)."""
+    return {"rate_hz": r.rate_hz, "command_delay_cycles": r.command_delay_cycles}
 
 
 def plant_values(r: Robot) -> dict[str, Any]:

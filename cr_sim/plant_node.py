@@ -25,7 +25,9 @@ simulated time (0 = run until stopped). Its command interface ("effort" or "posi
 Safety: the node hands every command to a :class:`~cr_sim.supervisor.PlantSupervisor`
 (no ROS; the offline loop steps through the same object) and steps the plant through it:
 command checks and limits, one commander at a time (by the publisher GIDs of
-:mod:`cr_control.nodes.sender_aware`), the watchdog (realtime), the reflexes, the safe stop
+:mod:`cr_control.nodes.sender_aware`), the driver's transport delay and late bursts
+(``command_delay_cycles``, ``late_burst_*``: :mod:`cr_sim.transport_delay`, in plant steps,
+so lockstep and real time delay alike), the watchdog (realtime), the reflexes, the safe stop
 (``safe_stop`` = 1 and ``safe_stop_reason`` on /plant/timing, ERROR on /diagnostics) and the
 run's early ends; see that module for the rules. A safe stop lasts until someone sets the
 parameter ``resume`` to true (``cr_param set plant resume true``); the plant then resets it
@@ -84,6 +86,7 @@ from cr_sim.plant_setup import (  # noqa: F401 - plant_parameters: the tools' wa
     command_limiter,
     initial_command,
     plant_parameters,
+    transport_delay,
     unlimited_joints,
     unlimited_note,
     warm_up,
@@ -143,7 +146,8 @@ class PlantNode(Node):
             command=initial_command(self.plant), stats=self.stats,
             commanders=expected_names(commander),
             logger=lambda: self.get_logger(), name_of=self._publisher_node,
-            on_safe_stop=lambda reason: self.diagnostics.safe_stop(reason))
+            on_safe_stop=lambda reason: self.diagnostics.safe_stop(reason),
+            delay=transport_delay(self.settings))
         self.watchdog = self.supervisor.watchdog
 
         self.command_stamp: int | None = None            # stamps as integer nanoseconds

@@ -13,6 +13,7 @@ from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.models.brake import MAX_BRAKE_STEP
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS
+from cr_sim.transport_delay import MAX_DELAY_CYCLES, TransportDelay
 
 NODE_PARAMETERS = [
     Param("mode", "realtime", "realtime: wall-clock timer; lockstep: step on each command.",
@@ -56,8 +57,27 @@ NODE_PARAMETERS = [
     # comparisons with the offline loop (which has none) open it up; fjr_robust_adaptive's
     # thesis runs need 1e5.
     Param("effort_rate_limit", 1000.0, "Torque-rate limit (N m/s) between consecutive "
-          "commands (libfranka: 1000); commands beyond are clipped.", "positive",
-          read_only=True, bound=1e9),
+          "commands (libfranka: 1000); commands beyond are clipped. 0 = none (a "
+          "forward_command_controller, MuJoCo's actuators: not every driver limits it).",
+          "nonnegative", read_only=True, bound=1e9),
+    Param("command_delay_cycles", 0, "Transport delay (integer >= 0): the command applied at "
+          "a step is the one held this many periods before, as a driver applies the answer to "
+          "a state a cycle or more later (libfranka: the next 1 kHz cycle, 1; ur_robot_driver's "
+          "effort interface: the next 2 ms RTDE cycle, 1; the robot profiles set their "
+          "driver's). 0: the answer to a state acts from that state on (the thesis's "
+          "simulations).", "integer", read_only=True, bound=MAX_DELAY_CYCLES),
+    Param("late_burst_probability", 0.0, "Late answers: each cycle outside a burst starts "
+          "one with this probability (a seeded draw: lockstep and the offline loop draw "
+          "the same); during it the driver keeps applying the last command it applied, then "
+          "catches up. 0 = none; 0.01 with bursts of 20-70 cycles is a Python controller on "
+          "a loaded machine.", "nonnegative", read_only=True, bound=1.0),
+    Param("late_burst_min_cycles", 20, "Shortest late burst (cycles, integer >= 1).",
+          "integer", read_only=True, bound=MAX_DELAY_CYCLES),
+    Param("late_burst_max_cycles", 70, "Longest late burst (cycles, integer >= "
+          "late_burst_min_cycles); each burst's length is drawn uniformly in between.",
+          "integer", read_only=True, bound=MAX_DELAY_CYCLES),
+    Param("late_burst_seed", 0, "Seed of the late bursts' draws.", "integer", read_only=True,
+          bound=Bound.SEED),
     Param("command_handover_cycles", 50, "One commander at a time (ros2_control, libfranka): "
           "commands from "
           "any other publisher on /joint_commands are refused (counted in commands_foreign) "
@@ -81,12 +101,20 @@ def plant_parameters(scenario: str) -> list[Param]:
 
 
 def check_settings(settings: dict) -> None:
-    """ParameterError for node settings that cannot work together: a cycle count below one,
-    or brakes too fast for the rate (a brake torque held for a period is stable only up to
-    ``MAX_BRAKE_STEP`` x rate_hz)."""
-    for name in ("watchdog_missed_cycles", "command_handover_cycles", "contact_wrench_every"):
+    """ParameterError for node settings that cannot work together: a cycle count below one
+    (below zero for the delay), late bursts shorter at most than at least, or brakes too fast
+    for the rate (a brake torque held for a period is stable only up to ``MAX_BRAKE_STEP`` x
+    rate_hz)."""
+    for name in ("watchdog_missed_cycles", "command_handover_cycles", "contact_wrench_every",
+                 "late_burst_min_cycles"):
         if settings[name] < 1:
             raise ParameterError(f"parameter {name} must be >= 1")
+    if settings["command_delay_cycles"] < 0:
+        raise ParameterError("parameter command_delay_cycles must be >= 0")
+    if settings["late_burst_max_cycles"] < settings["late_burst_min_cycles"]:
+        raise ParameterError(
+            f"late_burst_max_cycles {settings['late_burst_max_cycles']} is below "
+            f"late_burst_min_cycles {settings['late_burst_min_cycles']}")
     brake, rate = settings["brake_frequency"], settings["rate_hz"]
     if brake * (1.0 / rate) > MAX_BRAKE_STEP:        # as the node's period
         raise ParameterError(
@@ -118,8 +146,17 @@ def command_limiter(plant: Plant, settings: dict, period: float) -> CommandLimit
         value = given[0] if len(given) == 1 else given[i]
         urdf = float(limits.effort[i])
         effort.append(value if value > 0.0 else (urdf if 0.0 < urdf < np.inf else np.inf))
-    rate = [settings["effort_rate_limit"] if e < np.inf else np.inf for e in effort]
+    rate_limit = settings["effort_rate_limit"] or np.inf          # 0: none
+    rate = [rate_limit if e < np.inf else np.inf for e in effort]
     return CommandLimiter([-e for e in effort], effort, rate, period)
+
+
+def transport_delay(settings: dict) -> TransportDelay:
+    """The driver's transport delay and late bursts the node's settings ask for
+    (``command_delay_cycles``, ``late_burst_*``)."""
+    return TransportDelay(settings["command_delay_cycles"], settings["late_burst_probability"],
+                          (settings["late_burst_min_cycles"], settings["late_burst_max_cycles"]),
+                          settings["late_burst_seed"])
 
 
 def unlimited_joints(plant: Plant, limiter: CommandLimiter) -> list[str]:

@@ -23,6 +23,11 @@ time. Modelled on libfranka's rules for a robot's control connection.
 - **Reflexes** (libfranka's Cartesian and joint reflexes), after every step on the true
   state (:func:`reflex`): a contact force above the plant's ``max_contact_force`` or a joint
   faster than its URDF ``<limit velocity>`` engages the safe stop.
+- **Transport delay** (:class:`cr_sim.transport_delay.TransportDelay`): the command the
+  plant applies at a step is the one held ``cycles`` steps before, and in a late burst the
+  last one applied, as a driver applies an answer a cycle or more after the state it answers
+  (libfranka: the next 1 kHz cycle); the offline loop and both modes of the node step through
+  it alike. The brakes of a safe stop are the plant's own: not delayed.
 - **Safe stop** (:meth:`PlantSupervisor.engage`): the plant's brakes
   (:meth:`~cr_sim.plants.base.Plant.safe_stop_command`) act on every step, logged once with
   its reason, until :meth:`PlantSupervisor.resume`. In lockstep each command still advances
@@ -59,6 +64,7 @@ from cr_sim.loop_stats import (
     LoopStats,
 )
 from cr_sim.plants.base import CommandLimiter, Plant
+from cr_sim.transport_delay import TransportDelay
 from cr_sim.watchdog import Watchdog
 
 #: The most joints a command may name ...
@@ -128,7 +134,8 @@ class PlantSupervisor:
     as given (the offline loop: its runs stay bit for bit those of a loop without limits);
     ``logger()`` gives the logger of the moment (``info``/``warn``/``error``);
     ``name_of(gid)`` the full node name of a publisher on /joint_commands (None if unknown);
-    ``on_safe_stop(reason)`` is told when a safe stop begins (the node's /diagnostics)."""
+    ``on_safe_stop(reason)`` is told when a safe stop begins (the node's /diagnostics);
+    ``delay``: the driver's transport delay and late bursts (None: none)."""
 
     def __init__(self, plant: Plant, period: float, limiter: CommandLimiter | None = None, *,
                  lockstep: bool = True, watchdog_missed_cycles: int = 100,
@@ -138,8 +145,11 @@ class PlantSupervisor:
                  stats: LoopStats | None = None,
                  logger: Callable[[], Any] = _Silent,
                  name_of: Callable[[bytes], str | None] = lambda gid: None,
-                 on_safe_stop: Callable[[int], None] = lambda reason: None) -> None:
+                 on_safe_stop: Callable[[int], None] = lambda reason: None,
+                 delay: TransportDelay | None = None) -> None:
         self.plant = plant
+        #: What the driver applies of the held command (module docstring).
+        self.delay = delay if delay is not None else TransportDelay()
         self.period = period
         self.limiter = limiter
         self.lockstep = lockstep
@@ -194,6 +204,8 @@ class PlantSupervisor:
         """The limits, the watchdog and the reflexes in words (the node's first log line)."""
         limits = (f"command limits {self.limiter.lower}..{self.limiter.upper}, "
                   if self.limiter is not None else "")
+        if not self.delay.passes_through:
+            limits += self.delay.describe() + ", "
         return (limits + f"watchdog {self.reaction}"
                 + ("" if self.reaction == "disabled"
                    else f" after {self.watchdog.missed_limit} missed cycles")
@@ -329,8 +341,10 @@ class PlantSupervisor:
 
     # -- stepping ----------------------------------------------------------------------
     def step(self) -> None:
-        """One period of the plant: with the held command, or the brakes' in a safe stop;
-        then, on the new state, the finiteness check and the reflexes (:func:`reflex`)."""
+        """One period of the plant: with the held command as the driver applies it (its
+        transport delay), or the brakes' in a safe stop (the plant's own: not delayed; they
+        go through the delay's stream, so a resumed plant applies no stale command); then,
+        on the new state, the finiteness check and the reflexes (:func:`reflex`)."""
         plant = self.plant
         if self.safe_stop:                               # brakes act on every step
             brake = plant.safe_stop_command()
@@ -338,11 +352,12 @@ class PlantSupervisor:
                 self._command_list = self.limiter.bound(brake)
                 brake = self._command_list
             self.command = np.array(brake, dtype=float)
+            self.delay(self.command)
             plant.step(self.command, self.period)
             if not plant.state_is_finite():
                 self.non_finite("the plant's state")
             return
-        plant.step(self.command, self.period)
+        plant.step(self.delay(self.command), self.period)
         if not plant.state_is_finite():
             self.non_finite("the plant's state")
             return

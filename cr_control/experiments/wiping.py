@@ -1,8 +1,11 @@
 """The wiping task judged as a robot user judges it: by the true contact force and the path.
 
 One case runs a task-space scheme on a robot profile (:mod:`cr_control.robots`) in the
-offline loop at the profile's rate, optionally on a 10x stiffer table, started
-``clearance`` above it, with the controller's model scaled, or with the controller's
+offline loop at the profile's rate, without transport delay unless the case asks for one
+(``plant`` may set the plant node's ``command_delay_cycles`` and ``late_burst_*``: the
+profile's driver delays its commands a cycle, which the stiff table's figures do not take yet),
+with ``node_limits`` the plant node's command limits too, optionally on a 10x stiffer table,
+started ``clearance`` above it, with the controller's model scaled, or with the controller's
 gravity setting the opposite of the robot's (a mismatch). Its figures (:func:`wiping_metrics`):
 
 - force error mean and RMS (N): the true normal force f_n (the plant's contact force along
@@ -51,11 +54,13 @@ class Case:
     mismatch: bool = False          # the controller's gravity setting opposite the robot's
     duration: float = 8.0
     controller: tuple = ()          # extra controller overrides ((name, value), ...)
+    plant: tuple = ()               # extra plant (and plant node) overrides
+    node_limits: bool = False       # the plant node's effort and torque-rate limits too
 
     def overrides(self) -> tuple[dict[str, Any], dict[str, Any]]:
         """(controller, plant) overrides of the case."""
         c: dict[str, Any] = dict(self.controller)
-        p: dict[str, Any] = {}
+        p: dict[str, Any] = {"command_delay_cycles": 0, **dict(self.plant)}
         if self.table == "stiff":
             p["stiffness"] = robots.TABLE_STIFFNESS * STIFF_FACTOR
         if self.clearance:
@@ -123,7 +128,11 @@ def run_case(case: Case) -> tuple[dict[str, float], list[str]]:
         if ctl.gave_up and not gave_up_at:
             gave_up_at.append(t)
 
-    run = offline.run(controller, plant, case.duration, offline.robot_period(case.robot), watch)
+    period = offline.robot_period(case.robot)
+    limiter = (offline.build.node_limiter(plant, case.scheme, case.robot, p, period)
+               if case.node_limits else None)
+    run = offline.run(controller, plant, case.duration, period, watch, limiter=limiter,
+                      delay=offline.build.node_delay(case.scheme, case.robot, p))
     values = wiping_metrics(run, controller)
     values["gave_up_at_s"] = gave_up_at[0] if gave_up_at else math.nan
     return values, errors

@@ -10,9 +10,13 @@ from cr_control import robots
 from cr_control.offline.loop import OfflineRun, run
 from cr_control.schemes.controller import Controller
 from cr_control.schemes.registry import default_plant_overrides, default_scenario, make_controller
-from cr_sim.plant_setup import NODE_PARAMETERS, command_limiter
+from cr_sim.plant_setup import NODE_PARAMETERS, command_limiter, transport_delay
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.plants.registry import SCENARIOS, make_plant
+from cr_sim.transport_delay import TransportDelay
+
+#: The plant node's own settings (command limits, delay, ...): not the scenario's.
+NODE_SETTINGS = frozenset(p.name for p in NODE_PARAMETERS)
 
 
 def scheme_plant_overrides(scheme: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -29,7 +33,11 @@ def build_scheme(scheme: str, controller_overrides: dict[str, Any] | None = None
                  robot: str | None = None) -> tuple[Controller, Plant]:
     """The controller and plant :func:`run_scheme` steps: ``scheme`` on its thesis plant
     with thesis defaults and overrides, or on ``robot``'s wiping task (the parameters of
-    config/robots/<robot>/, see :mod:`cr_control.robots`)."""
+    config/robots/<robot>/, see :mod:`cr_control.robots`). ``plant_overrides`` may name the
+    plant node's settings too (``command_delay_cycles``, ``effort_rate_limit``, ...): they
+    are the loop's (:func:`node_settings`), not the plant's."""
+    plant_overrides = {k: v for k, v in (plant_overrides or {}).items()
+                       if k not in NODE_SETTINGS}
     if robot is None:
         plant = make_plant(default_scenario(scheme), scheme_plant_overrides(scheme, plant_overrides))
         controller = make_controller(scheme, controller_overrides)
@@ -54,22 +62,43 @@ def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any
     supervision, on a robot with the plant node's command limits (:func:`node_limiter`: its
     effort bounds and libfranka's 1 kN m/s torque-rate limit, which a lockstep session
     applies too); a thesis plant without them, as the thesis's simulations (its starts ask
-    ~20 N m within a cycle: a session of those opens the node's limits to match).
-    ``supervise`` False: without the plant's reflexes and limits (:func:`run`)."""
+    ~20 N m within a cycle: a session of those opens the node's limits to match). The
+    driver's transport delay (:func:`node_delay`): on a robot its profile's
+    (``command_delay_cycles``: 1 cycle on the Panda and the UR5), none on a thesis plant;
+    ``plant_overrides`` may set it and the late bursts (``late_burst_*``) as the plant
+    node's parameters. ``supervise`` False: without the plant's reflexes and limits
+    (:func:`run`)."""
     controller, plant = build_scheme(scheme, controller_overrides, plant_overrides, robot)
     period = robot_period(robot) if period is None else period
     limiter = None if robot is None else node_limiter(plant, scheme, robot, plant_overrides, period)
-    return run(controller, plant, duration, period, hook, supervise, limiter)
+    delay = node_delay(scheme, robot, plant_overrides)
+    return run(controller, plant, duration, period, hook, supervise, limiter, delay)
+
+
+def node_settings(scheme: str, robot: str | None,
+                  plant_overrides: dict[str, Any] | None) -> dict[str, Any]:
+    """The plant node's settings for this run: its defaults, the robot profile's driver
+    (:func:`cr_control.robots.plant_node_values`) or the thesis scheme's session settings,
+    then ``plant_overrides``."""
+    settings = {p.name: p.default for p in NODE_PARAMETERS}
+    given = {**(default_plant_overrides(scheme) if robot is None
+                else robots.plant_node_values(robots.robot(robot))), **(plant_overrides or {})}
+    settings.update({k: v for k, v in given.items() if k in settings})
+    return settings
+
+
+def node_delay(scheme: str, robot: str | None,
+               plant_overrides: dict[str, Any] | None = None) -> TransportDelay:
+    """The driver's transport delay the plant node would apply for this run (its
+    ``command_delay_cycles`` and ``late_burst_*``: :func:`node_settings`)."""
+    return transport_delay(node_settings(scheme, robot, plant_overrides))
 
 
 def node_limiter(plant: Plant, scheme: str, robot: str | None,
                  plant_overrides: dict[str, Any] | None, period: float) -> CommandLimiter:
     """The command limits the plant node would set for this run (its ``effort_limit`` and
     ``effort_rate_limit``: defaults, the scheme's session settings, ``plant_overrides``)."""
-    settings = {p.name: p.default for p in NODE_PARAMETERS}
-    given = {**(default_plant_overrides(scheme) if robot is None else {}), **(plant_overrides or {})}
-    settings.update({k: v for k, v in given.items() if k in settings})
-    return command_limiter(plant, settings, period)
+    return command_limiter(plant, node_settings(scheme, robot, plant_overrides), period)
 
 
 def robot_period(robot: str | None) -> float:

@@ -9,7 +9,11 @@ does, as the plant node would set them): a reflex (contact force, joint velocity
 the safe stop at the step a lockstep session would, the brakes act from then on (the
 controller's commands are still recorded, as a session records them), and the run says so
 (``safe_stop_reason``, ``safe_stop_at``, ``safe_stop_text``). A run that trips no reflex and
-meets no limit is the loop without supervision, bit for bit.
+meets no limit is the loop without supervision, bit for bit. ``delay`` is the driver's
+transport delay (:class:`cr_sim.transport_delay.TransportDelay`, stepped by the supervisor as
+the node's is, so lockstep with the same ``command_delay_cycles`` and bursts agrees): the
+command answering the state at t_k is then applied over [t_k+d, t_k+d+1); ``command`` keeps
+what the controller sent.
 
 A controller that reads the whole wrench (``reads_wrench``: a wrist sensor to compensate)
 is given force and torque, as the node gives it a WrenchStamped's; the plant's true contact
@@ -28,6 +32,7 @@ import numpy as np
 from cr_control.schemes.controller import Controller
 from cr_sim.plants.base import CommandLimiter, Plant
 from cr_sim.supervisor import PlantSupervisor
+from cr_sim.transport_delay import TransportDelay
 
 
 @dataclass
@@ -61,10 +66,12 @@ class OfflineRun:
 
 def run(controller: Controller, plant: Plant, duration: float, period: float = 1e-3,
         hook: Callable[[int, float, Controller, Plant], None] | None = None,
-        supervise: bool = True, limiter: CommandLimiter | None = None) -> OfflineRun:
+        supervise: bool = True, limiter: CommandLimiter | None = None,
+        delay: TransportDelay | None = None) -> OfflineRun:
     """Step ``plant`` and ``controller`` for ``duration`` s at ``period`` (module docstring);
-    ``supervise`` False: without the plant's supervision (no reflex, no brakes, no limits);
-    ``limiter``: the plant node's command limits (None: none)."""
+    ``supervise`` False: without the plant's supervision (no reflex, no brakes, no limits;
+    the delay still acts: it is the driver's); ``limiter``: the plant node's command limits
+    (None: none); ``delay``: the driver's transport delay (None: none)."""
     steps = int(round(duration / period))
     n = len(plant.joint_names)
     n_command = len(plant.command_joints)
@@ -97,7 +104,8 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         "true_force": np.full((steps, 3), np.nan),
     }
     true_force = getattr(plant, "contact_force", None)
-    supervisor = PlantSupervisor(plant, period, limiter) if supervise else None
+    supervisor = PlantSupervisor(plant, period, limiter, delay=delay) if supervise else None
+    delayed = delay if delay is not None and not delay.passes_through else None
     for k in range(steps):
         m = plant.measurement()
         if hook is not None:
@@ -118,7 +126,7 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         out = controller.step(sec + nanosec * 1e-9, q, v, force)
         command = out.command if to_plant is None else out.command[to_plant]
         if supervisor is None:
-            plant.step(command, period)
+            plant.step(command if delayed is None else delayed(command), period)
         else:
             supervisor.hold(command)
             supervisor.step()

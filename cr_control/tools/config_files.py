@@ -90,7 +90,7 @@ def robot_files() -> dict[str, str]:
     files = {}
     for name in robots.ROBOTS:
         r = robots.robot(name)
-        plant = {**robots.plant_values(r), "rate_hz": r.rate_hz}
+        plant = {**robots.plant_values(r), **robots.plant_node_values(r)}
         files[f"robots/{name}/plant.yaml"] = plant_yaml(
             plant["scenario"], plant, f"plant: the {name} wiping a table ({r.driver})")
         for scheme in robots.TASK_SPACE_SCHEMES:
