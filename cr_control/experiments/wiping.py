@@ -20,7 +20,9 @@ gravity setting the opposite of the robot's (a mismatch). Its figures (:func:`wi
   sideways drift before contact (m: the tip's largest distance in the table's plane from
   where it started);
 - the start check: whether and when the controller gave up, and the largest joint speed
-  (fraction of its URDF velocity limit).
+  (fraction of its URDF velocity limit) with the joint that reached it (1-based);
+- the longest run of cycles in which a joint's command sat at its URDF effort limit, and the
+  plant's safe stop (its reason, 0: none; the time it began).
 
 ``python -m cr_control.experiments.wiping`` prints the table of every scheme on every profile
 (default and stiff table) and the mismatch cases.
@@ -111,8 +113,22 @@ def wiping_metrics(run: offline.OfflineRun, controller: Any) -> dict[str, float]
     limits = controller.model.limits[2 * n:3 * n]
     speed = np.abs(run.velocity[:, :n]) / np.where(np.isfinite(limits), limits, np.inf)
     out["joint_speed_max_fraction"] = float(np.max(speed))
+    out["joint_speed_worst"] = float(np.argmax(np.max(speed, axis=0)) + 1)
+    out["torque_limit_run_cycles"] = float(longest_run(
+        np.any(np.abs(run.command) >= controller.command_limits * (1.0 - 1e-12), axis=1)))
+    out["safe_stop_reason"] = float(run.safe_stop_reason)
+    out["safe_stop_at_s"] = float(run.safe_stop_at)
     out["gave_up"] = float(controller.gave_up)
     return out
+
+
+def longest_run(flags: np.ndarray) -> int:
+    """The longest run of consecutive True values in ``flags``."""
+    best = current = 0
+    for flag in flags:
+        current = current + 1 if flag else 0
+        best = max(best, current)
+    return best
 
 
 def run_case(case: Case) -> tuple[dict[str, float], list[str]]:
@@ -143,7 +159,11 @@ COLUMNS = [("force_err_mean_N", "F err mean N", 1.0, 3), ("force_err_rms_N", "F 
            ("radial_rms_m", "radial RMS mm", 1e3, 2), ("centre_err_m", "centre mm", 1e3, 2),
            ("path_err_rms_m", "path RMS mm", 1e3, 2),
            ("impact_speed_m_s", "impact m/s", 1.0, 3), ("force_peak_N", "F peak N", 1.0, 2),
-           ("contact_lost_s", "lost s", 1.0, 3), ("drift_before_contact_m", "drift mm", 1e3, 2)]
+           ("contact_lost_s", "lost s", 1.0, 3), ("drift_before_contact_m", "drift mm", 1e3, 2),
+           ("joint_speed_max_fraction", "max q'/limit", 1.0, 2),
+           ("joint_speed_worst", "joint", 1.0, 0),
+           ("torque_limit_run_cycles", "at limit cycles", 1.0, 0),
+           ("safe_stop_at_s", "reflex s", 1.0, 2)]
 
 
 def _cell(value: float, scale: float, decimals: int) -> str:
@@ -174,9 +194,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--clearance", type=float, default=0.0)
     p.add_argument("--model-scale", type=float, default=1.0)
     p.add_argument("--duration", type=float, default=8.0)
+    p.add_argument("--delay", type=int, default=0,
+                   help="the driver's transport delay (cycles; the plant's command_delay_cycles)")
+    p.add_argument("--node-limits", action="store_true",
+                   help="with the plant node's effort and torque-rate limits")
     args = p.parse_args(argv)
     try:
-        cases = [Case(s, r, tb, args.clearance, args.model_scale, duration=args.duration)
+        cases = [Case(s, r, tb, args.clearance, args.model_scale, duration=args.duration,
+                      plant=(("command_delay_cycles", args.delay),),
+                      node_limits=args.node_limits)
                  for s in args.schemes.split(",") for r in args.robots.split(",")
                  for tb in args.tables.split(",")]
         for case in cases:
