@@ -12,8 +12,11 @@ import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
+from robot_data import needs_erd
 
+from cr_control import robots
 from cr_control.tools import fuzz
 
 BASE = fuzz.Row("baseline", True, True, 1.0, False, True, 3.0)
@@ -65,20 +68,50 @@ def test_every_row_of_the_issue_is_a_case():
 
 
 def test_the_round_two_session_cases_run_on_the_robot_after_its_baseline():
-    """Targets out of reach, wrench targets, the zeroing walk and the silent intruder: the
-    robot suite, judged against its own baseline on panda_ft."""
+    """Targets out of reach, along the table, into it and diagonally down, wrench targets,
+    the zeroing walk and the silent intruder: the robot suite, judged against its own
+    baseline on panda_ft."""
     robot = [case for case in fuzz.CASES if case.suite == "robot"]
     assert {case.name for case in robot} == {
-        "robot_baseline", "target_10_m", "target_1e300_m", "target_quaternion_1e200",
-        "target_nan", "wrench_target_1e6", "wrench_pull_away", "zeroing_walk", "silent_intruder"}
+        "robot_baseline", "target_10_m", "target_1e300_m", "target_along_table", "target_deep",
+        "target_diagonal", "target_quaternion_1e200", "target_nan", "wrench_target_1e6",
+        "wrench_pull_away", "zeroing_walk", "silent_intruder"}
     assert fuzz.SUITES["robot"] == ("robot_baseline", "panda_ft")
     assert {case.name for case in robot if not case.speed_judged} == {
-        "target_10_m", "target_1e300_m", "target_quaternion_1e200", "wrench_pull_away",
-        "zeroing_walk"}
+        "target_10_m", "target_1e300_m", "target_along_table", "target_deep", "target_diagonal",
+        "target_quaternion_1e200", "wrench_pull_away", "zeroing_walk"}
     assert {case.name for case in robot if case.force_judged} == {
-        "target_nan", "wrench_pull_away", "zeroing_walk"}
+        "target_along_table", "target_deep", "target_diagonal", "target_nan",
+        "wrench_pull_away", "zeroing_walk"}
     assert [case.name for case in robot if case.prepare is not None] == ["silent_intruder"]
     assert all(case.suite == "session" for case in fuzz.CASES[:len(fuzz.CASES) - len(robot)])
+
+
+class _Sender:
+    """Stands in for the fuzz's Intruder: records the pose targets a case sends."""
+
+    def __init__(self, robot):
+        self.robot, self.sent = robot, []
+
+    on_table = fuzz.Intruder.on_table
+
+    def target_pose(self, position, quaternion):
+        self.sent.append((position, quaternion))
+
+
+@needs_erd
+@pytest.mark.parametrize("robot", [None, "ur5_ft"])
+def test_the_table_targets_are_relative_to_the_robots_home_tip(robot):
+    """Along the table at the tool's height, 0.5 m below it, 10 m back, beside and down."""
+    home = robots.home_tip(robots.robot(robot or "panda_ft"))
+    offsets = {"target_along_table": [10.0, 0.0, 0.0], "target_deep": [0.0, 0.0, -0.5],
+               "target_diagonal": [-10.0, 10.0, -10.0]}
+    cases = {case.name: case for case in fuzz.CASES}
+    for name, offset in offsets.items():
+        sender = _Sender(robot)
+        cases[name].send(sender)
+        (position, _), = sender.sent
+        assert np.allclose(position, home + offset)
 
 
 def test_force_and_speed_are_judged_where_the_case_says():

@@ -9,7 +9,8 @@ Three suites (``--suite``), each printing a table:
   a second commander, a second source of joint states, a 10 MB JointState, a 10^6-element
   parameter request, a 10^12 N wrench, processes joining the domain.
 - ``robot``: on the Panda with a wrist sensor (``panda_ft``): pose targets out of reach (10 m,
-  1e300 m, a quaternion of norm 1e200, NaN), wrench targets (1e6 N, pulled away then
+  1e300 m, a quaternion of norm 1e200, NaN), along the table, into it and diagonally down
+  (judged by the force: within the baseline's 1.2 x + 2 N), wrench targets (1e6 N, pulled away then
   pressing), ~/zero_ft called over and over while pressing, and a node with a silent
   /joint_states publisher and a /joint_commands publisher on the domain before the session
   starts that then commands 1e308 N m.
@@ -63,7 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from cr_control.core.ros_env import claim_free_domain, isolated_env
-from cr_control.robots import ROBOTS
+from cr_control.robots import ROBOTS, home_tip
 
 #: A case's max |q'| may exceed the baseline run's by this factor plus SPEED_FLOOR.
 SPEED_MARGIN = 1.2
@@ -113,6 +114,8 @@ class Intruder:
 
         self.topics, self.qos = topics, CONTROL_QOS
         self.controller = f"/{controller}"
+        #: The session's robot profile (None: a thesis plant); run_case sets it.
+        self.robot: str | None = None
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = Node("cr_fuzz", context=self.context)
@@ -250,6 +253,12 @@ class Intruder:
             pub.publish(msg)
             time.sleep(1.0 / rate_hz)
 
+    def on_table(self, offset: list[float]) -> list[float]:
+        """The robot's home tip (where its wiping table touches the tool; the Panda's
+        without a robot) plus ``offset`` (m, base frame)."""
+        tip = home_tip(ROBOTS[self.robot or "panda_ft"])
+        return [float(x + d) for x, d in zip(tip, offset, strict=True)]
+
     def target_wrench(self, steps: list[tuple[float, float]], rate_hz: float = 10.0) -> None:
         """Wrench targets on ~/target_wrench: for each (force along the base's z (N), for how
         many seconds), that force at ``rate_hz``."""
@@ -361,6 +370,16 @@ CASES = [
     Case("target_1e300_m", "a pose target at 1e300 m, 2 s at 10 Hz",
          lambda x: x.target_pose([1e300, -1e300, 1e300], [0.0, 1.0, 0.0, 0.0]), suite="robot",
          speed_judged=False),
+    Case("target_along_table", "a pose target 10 m along the table, at the tool's height, 2 s "
+         "at 10 Hz", lambda x: x.target_pose(x.on_table([10.0, 0.0, 0.0]), [0.0, 1.0, 0.0, 0.0]),
+         suite="robot", speed_judged=False, force_judged=True),
+    Case("target_deep", "a pose target 0.5 m into the table below the tool, 2 s at 10 Hz",
+         lambda x: x.target_pose(x.on_table([0.0, 0.0, -0.5]), [0.0, 1.0, 0.0, 0.0]),
+         suite="robot", speed_judged=False, force_judged=True),
+    Case("target_diagonal", "a pose target 10 m back, beside and down, the tool turned askew, "
+         "2 s at 10 Hz", lambda x: x.target_pose(x.on_table([-10.0, 10.0, -10.0]),
+                                                 [0.3, -0.5, 0.7, 0.4]),
+         suite="robot", speed_judged=False, force_judged=True),
     Case("target_quaternion_1e200", "a pose target whose quaternion has norm 1e200",
          lambda x: x.target_pose([0.3, 0.0, 0.5], [0.0, 1e200, 0.0, 0.0]), suite="robot",
          speed_judged=False),
@@ -516,6 +535,7 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
     session = Session(cfg, progress=lambda *_: None)
     domain = claim_free_domain()
     intruder = Intruder(domain.domain_id, args.scheme)
+    intruder.robot = cfg.robot
     failure: list[str] = []
     if case.prepare is not None:
         case.prepare(intruder)

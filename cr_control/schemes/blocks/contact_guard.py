@@ -332,6 +332,18 @@ def hold_views(s, m):
 
 
 @njit(cache=True, error_model="numpy")
+def direction(s, m):
+    """The unit direction into the surface u (a view; zeros while none is known)."""
+    return s[_S_U:_S_U + m]
+
+
+@njit(cache=True, error_model="numpy")
+def speed(g):
+    """The guarded approach's speed v_a (0: no approach)."""
+    return g[_G_SPEED]
+
+
+@njit(cache=True, error_model="numpy")
 def phase_of(s):
     return s[_S_PHASE]
 

@@ -22,7 +22,10 @@ Three sources, one after the other:
    the target at most L = 2 v_max / w_f ahead of r_d (v_max = ``target_max_speed``): its
    speed then rises to w_f L / 2 = v_max without overshoot and stays there until the target
    is within L, where the filter ends critically damped as before (a step within L, and so
-   any streamed path slower than v_max, is followed exactly as without it). The desired
+   any streamed path slower than v_max, is followed exactly as without it). Before that,
+   each cycle, the target is held within a depth into the surface, a lead along it and an
+   angle of the measured tip (:mod:`.target_bounds`: the normal force stays the force
+   loop's, however far or deep the target). The desired
    orientation (the tip's orientation at the first state until a target arrives) follows
    the same filter on SO(3): w_d' = w_f^2 log(q_target q_d^-1) - 2 w_f w_d, q_d advanced by
    exp(w_d dt). Where the arm cannot follow, the filter waits for it: the pace
@@ -79,6 +82,7 @@ from cr_control.core.so3 import (
     rotation_vector,
 )
 from cr_control.schemes.blocks import contact_guard as guard
+from cr_control.schemes.blocks import target_bounds as bounds
 
 #: max_target_force's default (N).
 MAX_TARGET_FORCE = 100.0
@@ -364,6 +368,15 @@ def _leash(target, x, v_max, w):
 
 
 @njit(cache=True, error_model="numpy")
+def _bounded(g, s, target, r, m, w_f):
+    """The target position at most the depth and lead of :mod:`.target_bounds` from the
+    measured tip r (u: the guard's direction into the surface)."""
+    return bounds.bounded_position(target, r, guard.direction(s.guard, m),
+                                   bounds.depth_bound(guard.speed(g.guard), w_f),
+                                   bounds.LEAD_S * g.target_max_speed[0] / w_f)
+
+
+@njit(cache=True, error_model="numpy")
 def _rows_of(x, rows, m):
     out = np.empty(m)
     for i in range(m):
@@ -433,7 +446,8 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force, pace=1.0)
             else:
                 target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
                 target_q = targets[_T_QUAT:_T_QUAT + 4].copy()
-            target = _leash(target, s.r_f, v_max, w_f)
+            target = _leash(_bounded(g, s, target, r, m, w_f), s.r_f, v_max, w_f)
+            target_q = bounds.bounded_orientation(target_q, R, bounds.MAX_LEAD_ANGLE)
             x, xd = _filter_step(s.r_f, s.v_f, target, w_f, dt)
             s.r_f[:], s.v_f[:] = x, xd
             w_rot = s.w_f
@@ -447,7 +461,7 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force, pace=1.0)
         else:
             target = _rows_of(targets[_T_POS:_T_POS + 3], rows, m)
         r_d, v_d = s.r_f.copy(), s.v_f.copy()
-        target = _leash(target, r_d, v_max, w_f)
+        target = _leash(_bounded(g, s, target, r, m, w_f), r_d, v_max, w_f)
         a_d = w_f * w_f * (target - r_d) - 2.0 * w_f * v_d
     f_d = g.desired_force.copy()
     if has_wrench:

@@ -21,11 +21,15 @@ node's ``~/target_pose`` and ``~/target_wrench``) take effect from the next cycl
 are dealt with here, each with a reason logged at most once every 5 s (with a count):
 a non-finite value or a zero quaternion is refused; the quaternion is normalised without
 overflow (scaled by its largest element first: a quaternion of norm 1e200 is a rotation,
-not zeros); a position farther from the first joint than TARGET_REACH_FRACTION (80 %) of
-the chain's reach is moved onto that sphere along the same direction
-(:func:`chain_reach`: the sum of the URDF's joint-to-joint distances and the tip's offset,
-which no configuration exceeds, by the triangle inequality; along the task's position
-axes; the full stretch is singular); a force above ``max_target_force``
+not zeros); a position farther from the first joint than TARGET_REACH_FRACTION (90 %) of
+the chain's reach is moved onto that sphere along the same direction (:func:`chain_reach`:
+the farthest the tip gets from the first joint, searched within the joint limits; along the
+task's position axes; the full stretch is singular) and out of TARGET_AXIS_FRACTION (15 %)
+of it from the first joint's axis (:func:`cr_control.models.reach.off_the_axis`: over the
+base the arm is singular too); each cycle the target is then held
+within a depth into the surface, a lead along it and an angle of the measured tip
+(:mod:`cr_control.schemes.blocks.target_bounds`: the normal force stays the force loop's);
+a force above ``max_target_force``
 is scaled down to it. The reference then follows a pose at most ``target_max_speed`` and
 the force given to the law changes at most ``target_force_rate``
 (:mod:`cr_control.schemes.blocks.references`). Measured before (the Panda's wiping task,
@@ -51,6 +55,7 @@ import pinocchio as pin
 
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError, resolve
+from cr_control.models.reach import chain_reach, first_axis, off_the_axis
 from cr_control.models.urdf import JOINT_FRICTION_EPSILON
 from cr_control.schemes.blocks import contact_guard, references, safe_stop, wrist_sensor
 from cr_control.schemes.blocks.references import TARGETS, reference_gains, reference_state
@@ -80,28 +85,16 @@ EFFORT_LIMIT_FACTOR = 10.0
 #: Target positions are held within this fraction of :func:`chain_reach`: at the full stretch
 #: the arm is singular (its task mass capped, ``singularity_mass``) and a target there, 10 m
 #: up, drove the robust law's switching term into a growing joint 2/4 oscillation until
-#: joint 6 passed its velocity limit (Panda, offline); at 90 % the UR5's elbow still reached
-#: its limit under the plant node's 1 kN m/s torque-rate limit (6 of 10 cases); at 80 %
-#: (0.87 m on the Panda, 0.99 m on the UR5: the makers' 855 and 850 mm reach plus the tool)
-#: none did, every scheme on both robots.
-TARGET_REACH_FRACTION = 0.8
-
-
-def chain_reach(chain_model) -> tuple[np.ndarray, float]:
-    """(centre, radius): the first joint's origin (base frame) and the farthest the tip can
-    be from it: the distances between successive joint origins and from the last joint to
-    the tip (constant across a revolute joint), plus each prismatic joint's largest travel
-    (inf without limits)."""
-    model = chain_model.model
-    centre = np.array(model.jointPlacements[1].translation, dtype=float)
-    radius = sum(float(np.linalg.norm(model.jointPlacements[j].translation))
-                 for j in range(2, model.njoints))
-    radius += float(np.linalg.norm(model.frames[chain_model.tip].placement.translation))
-    lim = chain_model.limits
-    for j, kind in enumerate(chain_model.kinds):
-        if kind == "prismatic":
-            radius += max(abs(float(lim.lower[j])), abs(float(lim.upper[j])))
-    return centre, radius
+#: joint 6 passed its velocity limit (Panda, offline). Of the triangle inequality's bound,
+#: 80 % (0.87 m on the Panda, 0.99 m on the UR5) still let a target along the table take
+#: the UR5's tip 0.945 m from its first joint, 99.5 % of its farthest: the elbow passed its
+#: velocity limit (three of five schemes); at 90 % of the farthest (0.85 m on the Panda,
+#: 0.86 m on the UR5: the makers' 855 and 850 mm reach plus the tool) none did.
+TARGET_REACH_FRACTION = 0.9
+#: ... and at least this fraction of it from the first joint's axis (models.reach.off_the_axis):
+#: a target 10 m straight up put the UR5's tip over its base, where joint 1 spun up to its
+#: velocity reflex (nn_adaptive_impedance, offline); 0.14 m on the Panda and the UR5.
+TARGET_AXIS_FRACTION = 0.15
 
 
 def safe_norm(x: np.ndarray) -> float:
@@ -300,6 +293,9 @@ class TaskSpaceController(Controller):
         limits of the targets' log lines."""
         self.reach_centre, full = chain_reach(self.model.chain_model)
         self.reach = TARGET_REACH_FRACTION * full
+        self.reach_axis = first_axis(self.model.chain_model)
+        self.reach_inner = TARGET_AXIS_FRACTION * full
+        self._i_tip = [self._status.index(f"r_{a}") - 1 for a in self.model.position_axes]
         self._position_rows = self.model.task[3:3 + self.model.m].astype(int)
         self.target_notes = {"pose": wrist_sensor.RateLimitedLog(),
                              "wrench": wrist_sensor.RateLimitedLog()}
@@ -435,11 +431,34 @@ class TaskSpaceController(Controller):
                               f"m from the first joint, beyond {TARGET_REACH_FRACTION:.0%} of "
                               f"the arm's reach, {self.reach:.3g} m: moved there, to "
                               f"{np.round(position, 4).tolist()}")
+        self._off_the_axis(position, rows)
         t = self.targets
         t[TARGETS.offset("position"):TARGETS.offset("position") + 3] = position
         t[TARGETS.offset("quaternion"):TARGETS.offset("quaternion") + 4] = q
         t[TARGETS.offset("pose_seq")] += 1.0
         return True
+
+    def _off_the_axis(self, position: np.ndarray, rows: np.ndarray) -> None:
+        """``position`` (in place) at least reach_inner from the first joint's axis and still
+        within the reach (models.reach.off_the_axis); a point on the axis moves out towards
+        the tip's last measured position."""
+        offset = position - self.reach_centre
+        away = np.zeros(3)
+        if self._last is not None:
+            away[rows] = self._last.status[self._i_tip] - self.reach_centre[rows]
+        moved, was_near = off_the_axis(offset, self.reach_axis, self.reach_inner, away)
+        if not was_near:
+            return
+        if safe_norm(moved[rows]) > self.reach:          # pushed out of the sphere: back onto it
+            along = float(moved @ self.reach_axis)
+            moved += (np.copysign(np.sqrt(max(self.reach ** 2 - self.reach_inner ** 2, 0.0)),
+                                  along) - along) * self.reach_axis
+        given = position.copy()
+        position[rows] = self.reach_centre[rows] + moved[rows]
+        self._target_note("pose", f"~/target_pose position {np.round(given, 4).tolist()} is "
+                          f"within {self.reach_inner:.3g} m of the first joint's axis (over the "
+                          f"base the arm is singular): moved out to "
+                          f"{np.round(position, 4).tolist()}")
 
     def set_target_wrench(self, force: np.ndarray) -> bool:
         """A new desired contact force (base frame, N), from the next cycle; False if
