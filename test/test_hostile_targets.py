@@ -168,6 +168,49 @@ def test_a_drifting_sensor_is_zeroed_up_to_the_bound_then_only_when_forced():
     assert np.abs(c.wrist.first_bias[:3] - first).max() < 0.1
 
 
+def test_zero_ft_on_frankas_estimated_wrench_answers_what_it_sees():
+    """The ``panda`` profile: no sensor frame, no tool, no bias (libfranka takes the load
+    off): nothing to compensate, so the wrench went to the law untouched and ~/zero_ft
+    answered "no state and wrench yet: nothing to zero" while the arm pressed 4.5 N. Now it
+    judges by the states it has seen: pressing 4.5 N (asked), every call from 3 s is refused
+    because the law asks for that force (or, over 5 N with the estimate's noise, because it
+    is in contact), and the true force stays."""
+    c, p, _, clock = build("adaptive_impedance", "panda", desired_force=[0.0, 0.0, 4.5], **HOLD)
+    run, answers = zeroing(c, p, clock, 5.0, range(3000, 5000, 200))
+    assert answers and not any(ok for ok, _ in answers)
+    assert all("asks for a contact force of 4.5 N" in why or why.startswith("in contact")
+               for _, why in answers), answers
+    assert np.abs(run.true_force[run.time >= 3.0, 2] - 4.5).max() < 0.3
+
+
+def test_frankas_estimated_wrench_is_zeroed_as_franka_users_do():
+    """In the air, Franka's estimate off by a model error of (1.5, -1.0, 2.0) N: the law reads
+    it (the reaction's sign flipped: -(1.5, -1.0, 2.0) N); ~/zero_ft at 3 s (the start's
+motion rung out: |q'| < 0.05 rad/s from 2.3 s) takes it as the
+    bias in the base frame (franka_ros's force example subtracts the external torque it
+    starts with) and the law reads 0 within the estimate's noise after the blend."""
+    c, p, _, clock = build("adaptive_impedance", "panda", plant={"surface": "none"},
+                           desired_force=[0.0, 0.0, 0.0], **HOLD)
+    error = np.array([1.5, -1.0, 2.0])
+    measure = p.measurement
+
+    def estimated():
+        m = measure()
+        m.force = m.force + error
+        return m
+
+    p.measurement = estimated
+    run, answers = zeroing(c, p, clock, 4.5, range(3000, 3001))
+    (ok, why), = answers
+    assert ok, why
+    f = np.column_stack([run.column(f"f_{a}") for a in "xyz"])
+    before, after = f[(run.time > 2.0) & (run.time < 3.0)], f[run.time > 4.0]
+    print(f"law's force before {before.mean(axis=0).round(3)}, after {after.mean(axis=0).round(3)}")
+    assert np.abs(before.mean(axis=0) + error).max() < 0.1
+    assert np.abs(after.mean(axis=0)).max() < 0.1
+    assert np.allclose(c.wrist.bias[:3], -error, atol=0.1)
+
+
 # -- 2. target wrench sequences ------------------------------------------------------------------
 #: Every scheme's true force is back within 1 N of its target this long after the last
 #: change of the sequence (measured: 2.04 s at most).

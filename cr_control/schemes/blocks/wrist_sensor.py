@@ -399,6 +399,8 @@ class WristSensor:
         #: Where refusals and abandonments go (rate-limited by :attr:`refusals`).
         self.warn = print
         self.refusals = RateLimitedLog()
+        #: The last (t, q', force) of an inactive sensor (:meth:`observe`), or None.
+        self._seen: tuple | None = None
 
     def set_tool(self, values: dict) -> None:
         """Take tool_mass and tool_com."""
@@ -435,6 +437,23 @@ class WristSensor:
                 else:
                     self.force[:] = 0.0     # held still, touching at zero force
         return self.force
+
+    def observe(self, t: float, v: np.ndarray, force: np.ndarray) -> None:
+        """The last state of an inactive sensor (nothing to compensate: the force as the law
+        reads it, base frame): kept by reference for :meth:`request_zero`, nothing computed
+        on the cycle. Zeroing then zeroes that force as it is, in the base frame: Franka's
+        estimated wrench (the ``panda`` profile), as franka_ros's force example controller
+        takes the external torque it starts with as the bias ("Bias correction for the
+        current external torque")."""
+        self._seen = (t, v, force)
+
+    def _take_seen(self) -> None:
+        """The inactive sensor's last state as the active one's (R_S = I: the base frame)."""
+        t, v, force = self._seen
+        self.last_t = float(t)
+        self.last_speed = float(np.linalg.norm(v))
+        self.force[:] = np.asarray(force, dtype=float)[:3]
+        self.R[:] = np.eye(3).reshape(9)
 
     def skip_start(self) -> None:
         """An activation after states were seen (a lifecycle switch, possibly in contact):
@@ -473,7 +492,10 @@ class WristSensor:
         while the law asks for a contact force, and unless forced while in contact or when
         the bias the last reading makes is farther than ``max_change`` (N) from the first
         one (module docstring). Only the answer says why; the log is left to the caller
-        (:meth:`refused`)."""
+        (:meth:`refused`). An inactive sensor (nothing compensated yet) judges by its last
+        observed state (:meth:`observe`) and becomes active once a zeroing is accepted."""
+        if not self.active and self._seen is not None:
+            self._take_seen()
         if not math.isfinite(self.last_t):
             return False, "no state and wrench yet: nothing to zero"
         if self.zeroing:

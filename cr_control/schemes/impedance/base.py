@@ -501,6 +501,8 @@ class TaskSpaceController(Controller):
             if self.wrist.holding:
                 return self._hold(q, v, force, out)
             t -= self.wrist.law_start
+        else:
+            self.wrist.observe(t, v, force)     # what ~/zero_ft judges by (references only)
         views = self.cycle(t, dt, q, v, force, out)
         if self.wrist.at_start and t < wrist_sensor.HOLD_BLEND_S:
             # from the hold's G(q) to the law's command without a jump (smoothstep)
