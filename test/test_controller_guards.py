@@ -32,12 +32,14 @@ from cr_control.core import topics
 from cr_control.nodes import controller_node
 from cr_control.nodes.controller_node import SOURCE_SILENCE_S, ControllerNode
 from cr_control.nodes.raw_messages import joint_state_max_bytes
+from cr_control.schemes import command_gate
 from cr_control.schemes.controller import ACCEPTED, COMMAND_NOT_FINITE, accept_cycle
 from cr_control.schemes.registry import make_controller
 from cr_sim.plants.registry import make_plant
 
 PERIOD = 1e-3
 MAX_BAD = 50        # the default max_bad_cycles
+RESUME_CYCLES = command_gate.RESUME_CYCLES
 
 
 # -- the law's output (offline) ----------------------------------------------------------
@@ -104,14 +106,23 @@ def test_a_law_failing_for_good_stops_commanding_after_exactly_max_bad_cycles(wh
     assert ("non-finite command" if what == "command" else "internal state not finite") in line
 
 
-def test_commanding_resumes_with_the_first_good_output():
+def test_commanding_resumes_after_resume_cycles_good_outputs_not_the_first():
+    """Hysteretic (command_gate): after the stop, RESUME_CYCLES (200) good outputs of fresh
+    states in a row, not the first one (which let a law alternate between braking and
+    commanding every 70 ms); the law's internal state does not move meanwhile (dt = 0)."""
     ctl, plant, logs = settled()
     undo = poison(ctl)
     assert hold_still(ctl, plant, MAX_BAD + 5)[-1] is False
     undo()
-    assert hold_still(ctl, plant, 1, start=MAX_BAD + 6) == [True]
+    held = ctl.internal.copy()
+    start = MAX_BAD + 6
+    assert hold_still(ctl, plant, RESUME_CYCLES - 1, start) == [False] * (RESUME_CYCLES - 1)
+    assert np.array_equal(ctl.internal, held)          # nothing integrated while stopped
+    assert hold_still(ctl, plant, 6, start + RESUME_CYCLES - 1) == [True] * 6
     assert ctl.bad_run == 0 and ctl.stops == 1
     assert len(logs.info) == 1 and "commanding resumes" in logs.info[0]
+    assert f"after {RESUME_CYCLES} cycles in a row with fresh states" in logs.error[0]
+    assert not np.array_equal(ctl.internal, held)     # integrating again once resumed
 
 
 def test_a_transient_non_finite_output_never_stops_commanding():

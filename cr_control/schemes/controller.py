@@ -11,12 +11,15 @@ A law that fails for good does not keep a command in force: after
 ``max_bad_cycles`` cycles in a row whose output was held because of the law (a
 non-finite command or internal state) or had a command element at its limit on the same
 side (+-max_effort, or the URDF effort the task-space kernels clip to: ``command_limits``),
+or at a state answered too late (:mod:`cr_control.schemes.command_gate`),
 :attr:`Controller.commanding` turns False. A scheme with a braking command
 (:meth:`Controller.brake_command`: the task-space schemes) then outputs it every cycle and
 the node keeps publishing it, because a real robot's forward_command_controller applies
 the last command forever (ros2_controllers #95); a scheme without one stops publishing and
-the plant's watchdog brakes. Commanding turns True again with the first output that is
-finite and inside its limits, unless the controller gave up for good
+the plant's watchdog brakes. Commanding turns True again only after RESUME_CYCLES
+consecutive fresh states whose output was finite and inside its limits (hysteretic, so it
+never alternates every few cycles; meanwhile the law integrates nothing and its clock
+stands: :mod:`cr_control.schemes.command_gate`), unless the controller gave up for good
 (:meth:`Controller.give_up`: a failed start check), which only an activation undoes.
 Commands alternating between the two limits (the chatter of
 fjr_robust_adaptive's measured q_m'') restart the count; cycles held because of the
@@ -50,6 +53,7 @@ from cr_control.core.linalg import all_finite
 from cr_control.core.parameters import Bound, Param
 from cr_control.core.rate_limited_log import RateLimitedLog
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
+from cr_control.schemes.command_gate import RESUME, STOP_BAD, STOP_LATE, CommandGate
 
 #: Parameters of every controller node.
 COMMON_PARAMETERS = [
@@ -95,9 +99,9 @@ COMMON_PARAMETERS = [
     Param("max_bad_cycles", 50, "Commands stop after this many cycles in a row in which the "
           "law's output was not usable (non-finite command or internal state: held) or a "
           "command sat at its limit (+-max_effort or the URDF effort) on the same side; the "
-          "plant's watchdog then brakes. Commanding resumes with the first output that is "
-          "finite and inside its limits (integer >= 1; see docs/safety.md).", "integer",
-          bound=10000),
+          "plant's watchdog then brakes. Commanding resumes after 200 consecutive fresh "
+          "states with an output finite and inside its limits (integer >= 1; see "
+          "docs/safety.md).", "integer", bound=10000),
     # 1e4 N: the range of the largest 6-axis force/torque sensors.
     Param("max_sensor_force", 1000.0, "A measured contact force above this (N, Euclidean "
           "norm), or a non-finite one, is a sensor fault: the last sane reading is used "
@@ -310,6 +314,10 @@ class Controller(ABC):
         self.stops = 0
         #: True after :meth:`give_up`: commanding stays off until :meth:`reset`.
         self.gave_up = False
+        #: The give-up and resume rule (:mod:`cr_control.schemes.command_gate`); the stamp
+        #: commanding stopped at (the law's clock stands from there until it resumes).
+        self.gate = CommandGate(self.values["max_bad_cycles"])
+        self._stopped_at: float | None = None
         self._guard = np.zeros(2 * self.n_joints)
         #: Where fault warnings go (the controller node routes them to its ROS logger), and
         #: the one-off lines of a stop (error) and of resuming (info).
@@ -318,6 +326,7 @@ class Controller(ABC):
         self.log_info: Callable[[str], None] = _log.info
         self._held_log = RateLimitedLog(lambda _severity, text: self.log_warning(text),
                                         WARN_EVERY_S)
+        self._gate_log = RateLimitedLog(self._emit, WARN_EVERY_S)
 
     def read_joint_names(self) -> list[str]:
         """Joints whose states the law reads: the ``state_joint_names`` parameter where a
@@ -416,6 +425,8 @@ class Controller(ABC):
         start = time.perf_counter()
         values = self.values
         out = None
+        if math.isfinite(stamp):
+            self.gate.stamp(stamp)  # its age: how long the command in force has stood
         admitted = admit_state(self.n_state, values["max_joint_position"],
                                values["max_joint_velocity"], stamp, q, v, force)
         if not admitted:
@@ -428,12 +439,15 @@ class Controller(ABC):
             gap = stamp - self._t_prev
             if 0.0 <= gap <= values["max_stamp_gap"]:
                 self._t_prev = stamp
-                out, reason = self._compute(stamp, min(stamp - self._t_step, values["max_dt"]),
-                                            q, v, force)
+                # stopped: the law integrates nothing (command_gate)
+                dt = min(stamp - self._t_step, values["max_dt"]) if self.commanding else 0.0
+                out, reason = self._compute(stamp, dt, q, v, force)
             else:
                 reason = (f"stamp {'went back' if gap < 0.0 else 'jumped'} by {gap:.6g} s "
                           f"(max_stamp_gap {values['max_stamp_gap']:g} s): stepping restarts")
                 self._t_prev = self._t_step = stamp
+                if gap > 0.0:       # a state this late stops commanding too (command_gate)
+                    self._judge(self.bad_run, reason, stamp)
         if out is None:
             self.held_cycles += 1
             self._warn(reason)
@@ -482,6 +496,7 @@ class Controller(ABC):
             return
         self.gave_up = True
         self.commanding = False
+        self.gate.stop()
         self.stops += 1
         self.log_error(reason)
 
@@ -503,6 +518,8 @@ class Controller(ABC):
         self.bad_run = 0
         self.commanding = True
         self.gave_up = False
+        self.gate.reset()
+        self._stopped_at = None
         self._last = None
 
     def observe(self, stamp: float) -> None:
@@ -527,7 +544,9 @@ class Controller(ABC):
         if internal is not self._internal_of:
             self._internal_good, self._internal_of = internal.copy(), internal  # initial value
             self._internal_initial = internal.copy()
-        out = self.compute(stamp - self._t0, dt, q, v, force)
+        # stopped: the law's clock stands where it stopped (command_gate)
+        law_stamp = stamp if self._stopped_at is None else self._stopped_at
+        out = self.compute(law_stamp - self._t0, dt, q, v, force)
         values = self.values
         verdict, run = accept_cycle(self.n_joints, values["max_effort"], self.command_limits,
                                     internal, self._internal_good, out.command, out.status,
@@ -546,12 +565,25 @@ class Controller(ABC):
             reason = f"command of the wrong size {out.command.shape}"
         else:
             reason = f"non-finite command {out.command}"
-        if run > values["max_bad_cycles"]:
-            if self.commanding:
-                self._stop(reason or self._at_limit())
-        elif run == 0 and not self.commanding and not self.gave_up:
-            self._resume()
+        self._judge(run, reason, stamp)
         return (out, "") if verdict == ACCEPTED else (None, reason)
+
+    def _judge(self, run: int, reason: str, stamp: float) -> None:
+        """The give-up and resume rule on this cycle (:mod:`cr_control.schemes.command_gate`;
+        nothing after :meth:`give_up`)."""
+        if self.gave_up:
+            return
+        gate = self.gate
+        gate.max_bad_cycles = self.values["max_bad_cycles"]
+        event = gate.cycle(run)
+        if event == STOP_BAD:
+            self._stop(f"more than {self.values['max_bad_cycles']} cycles in a row "
+                       "(max_bad_cycles) with a non-finite or saturated output ("
+                       f"{reason or self._at_limit()})", stamp)
+        elif event == STOP_LATE:
+            self._stop(gate.late_text(), stamp)
+        elif event == RESUME:
+            self._resume(stamp)
 
     def _at_limit(self) -> str:
         """Which command element sits at its limit longest, and where (for the stop line)."""
@@ -565,20 +597,33 @@ class Controller(ABC):
                 + (f", URDF effort {self.command_limits[j]:g})" if math.isfinite(
                     self.command_limits[j]) else ")"))
 
-    def _stop(self, reason: str) -> None:
+    def _emit(self, severity: str, text: str) -> None:
+        (self.log_error if severity == "error" else self.log_info)(text)
+
+    def _stop(self, reason: str, stamp: float) -> None:
+        """Stop commanding (the gate already has): one line, later ones rate-limited."""
         self.commanding = False
         self.stops += 1
-        self.log_error(
-            f"{self.scheme}: more than {self.values['max_bad_cycles']} cycles in a row "
-            f"(max_bad_cycles) with a non-finite or saturated output ({reason}): "
+        self._stopped_at = stamp
+        gate = self.gate
+        self._gate_log("stop", "error", lambda: (
+            f"{self.scheme}: {reason}: "
             + ("braking (the braking command is published in its place)" if self.brakes
                else "commands stopped; the plant's watchdog will brake")
-            + ". Commanding resumes once the law's output is finite and inside its limits")
+            + f". Commanding resumes after {gate.resume_cycles} cycles in a row with fresh "
+            f"states (at most {gate.fresh_cycles:g} periods apart) and the law's output "
+            "finite and inside its limits; until then the law integrates nothing and its "
+            f"clock stands (stop {self.stops})"))
 
-    def _resume(self) -> None:
+    def _resume(self, stamp: float) -> None:
         self.commanding = True
-        self.log_info(f"{self.scheme}: the law's output is finite and inside its limits again: "
-                      "commanding resumes (a plant in safe stop stays there until resumed)")
+        if self._stopped_at is not None and self._t0 is not None:
+            self._t0 += stamp - self._stopped_at      # the law's clock goes on where it stood
+        self._stopped_at = None
+        self._gate_log("resume", "info", lambda: (
+            f"{self.scheme}: {self.gate.resume_cycles} cycles in a row with fresh states and "
+            "the law's output finite and inside its limits: commanding resumes (a plant in "
+            "safe stop stays there until resumed)"))
 
     def _warn(self, reason: str) -> None:
         """Log why a cycle was held, at most every WARN_EVERY_S with a count in between."""

@@ -488,7 +488,7 @@ class TaskSpaceController(Controller):
             D, F = self._friction
             views.command += (D * v + F * np.tanh(v / JOINT_FRICTION_EPSILON))[self._order]
             self._report_command(views)
-        if not self.gave_up:
+        if self.commanding:         # not while braking: the brake, not the law, moves the arm
             self._check_start(t, v, views)
         return views
 
