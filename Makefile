@@ -36,20 +36,24 @@ demo: $(STAMP) $(if $(ROBOT),$(ROBOTS_STAMP))
 	$(BIN)/python -m cr_control.tools.warm_up $(SCHEME)
 	$(BIN)/cr_session --scheme $(SCHEME) --duration $(DURATION) --mode $(MODE) --out $(OUT) $(if $(ROBOT),--robot $(ROBOT)) $(DEMO_ARGS)
 
+## The suite on both cores: a module whole on one worker, the Ray modules on one (test/conftest.py).
+PYTEST := $(BIN)/python -m pytest -q -n 2 --dist loadgroup
+
 ## Lint, the import contracts (.importlinter, docs/architecture.md), compile the kernels once
 ## (numba caches them beside the sources), the whole test suite.
 test: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m cr_control.tools.warm_up
-	$(BIN)/python -m pytest -q --durations=30 test
+	$(PYTEST) --durations=30 test
 
-## The same without the tests that start ROS or Ray (marked `ros`, test/conftest.py): under 2 min.
+## The same without the tests that start ROS or Ray (marked `ros`) and the long offline studies'
+## matrices beyond a sample (marked `slow`, test/conftest.py): under 2 min.
 test-fast: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m cr_control.tools.warm_up
-	$(BIN)/python -m pytest -q -m "not ros" test
+	$(PYTEST) -m "not ros and not slow" test
 
 ## Real-time figures and their targets (PASS/FAIL): sessions across processes, composed and
 ## with the recorder vs a bare rclpy echo pair, the recorder's CPU per message, lockstep and

@@ -3,17 +3,28 @@
 Domain ids come from :func:`ros_probe.next_domain`, which holds them machine-wide
 (cr_control.core.ros_env locks) for the test, or the module for module-scoped fixtures.
 
-Two tiers. A test that starts ROS or a Ray cluster is marked ``ros``: it calls rclpy.init
+Two tiers, each run on both cores (pytest-xdist, ``-n 2``). A test that starts ROS or a
+Ray cluster is marked ``ros``: it calls rclpy.init
 (also through ros_probe.RosProbe, plant_harness's ``make_node`` or a node made in the
 test), starts a process of our nodes, of cr_session or of a tool that talks to nodes
 (cr_param, cr_lifecycle, cr_fuzz, cr_identify_tool, the benchmark), or starts Ray (the
 sweep engine, cr_reproduce). Mark the test with ``@pytest.mark.ros``, or the whole module
 with ``pytestmark = pytest.mark.ros`` when every test in it does. ``make test-fast`` runs
-the rest (``pytest -m "not ros"``, under 2 minutes); ``make test`` and CI run both. An
-unmarked test that calls rclpy.init fails at once, saying so.
+the rest (``pytest -m "not ros and not slow"``, under 2 minutes); ``make test`` and CI run
+all. A long offline study (many closed-loop runs, tens of seconds) is marked ``slow``: the
+fast tier leaves it to the full suite. An unmarked test that calls rclpy.init fails at once,
+saying so.
+
+In parallel, every module runs whole on one worker (its module fixtures made once); the
+modules that start a Ray cluster share one worker (:data:`RAY_MODULES`: two clusters at once
+would contend for the head's ports), and the long modules are handed out first
+(:data:`LONG_MODULES`) so that no worker is left with one at the end. Each worker holds ROS
+domains of its own (:func:`ros_probe.next_domain`, machine-wide locks).
 """
 
+import fcntl
 import os
+import shutil
 
 import pytest
 from plant_harness import make_node  # noqa: F401 - a fixture for every test module
@@ -34,10 +45,51 @@ use_node_dds_profile()   # nodes made in this process run as they do in their ex
 os.environ.setdefault(SETTLE_VARIABLE, "0")
 
 
+#: Modules that start a Ray cluster (the sweep engine, cr_reproduce --quick): one worker.
+RAY_MODULES = ("test_readme.py", "test_results_tables.py", "test_sweep.py", "test_sweep_cluster.py")
+#: Modules of a minute or more, handed out first (longest first).
+LONG_MODULES = ("test_readme.py", "test_colcon.py", "test_sigint.py", "test_robots.py",
+                "test_hostile_targets.py")
+
+
 def pytest_configure(config):
     config.addinivalue_line(
         "markers", "ros: starts ROS or a Ray cluster (rclpy.init, a node, cr_session, a ROS tool, "
                    "Ray); make test-fast leaves these out (-m 'not ros')")
+    config.addinivalue_line(
+        "markers", "slow: a long offline study (tens of seconds); make test runs it, make "
+                   "test-fast leaves it out (-m 'not slow')")
+
+
+#: Long offline studies (a parametrized matrix of closed-loop runs, seconds each): the first
+#: cases of each stay in the fast tier (a sample every edit runs), the rest are ``slow``.
+STUDIES = {
+    "test_robots.py::test_wiping_holds_the_force_on_the_path": 2,
+    "test_robots.py::test_wiping_a_stiff_table": 1,
+    "test_robots.py::test_wiping_at_three_times_the_drivers_delay": 2,
+    "test_hostile_targets.py::test_no_target_wrench_sequence_winds_a_law_up": 2,
+    "test_hostile_targets.py::test_zero_ft_every_0_2_s_while_pressing_10_n_leaves_the_true_force_alone": 1,
+    "test_hostile_targets.py::test_a_target_pose_out_of_reach_never_needs_a_reflex": 2,
+}
+
+
+def pytest_collection_modifyitems(config, items):
+    """The studies' slow cases marked; one xdist group per module (the Ray modules: one for
+    all); long modules first."""
+    def module(item) -> str:
+        return item.nodeid.split("::")[0].rpartition("/")[2]
+
+    seen: dict[str, int] = {}
+    for item in items:
+        name = module(item)
+        study = f"{name}::{item.originalname}"
+        if study in STUDIES:
+            seen[study] = seen.get(study, 0) + 1
+            if seen[study] > STUDIES[study]:
+                item.add_marker(pytest.mark.slow)
+        item.add_marker(pytest.mark.xdist_group("ray" if name in RAY_MODULES else name))
+    rank = {name: i for i, name in enumerate(LONG_MODULES)}
+    items.sort(key=lambda item: rank.get(module(item), len(rank)))   # stable: order kept
 
 
 #: Whether the running test may start ROS (its ``ros`` mark), set before its fixtures.
@@ -85,9 +137,18 @@ def ros_env() -> dict[str, str]:
 @pytest.fixture(scope="session")
 def reproduce_quick(tmp_path_factory):
     """DIR of one ``cr_reproduce --quick`` run (report.html, claims.json) for the session:
-    deterministic, so every test reading it sees the numbers CI and docs/results.md see."""
+    deterministic, so every test reading it sees the numbers CI and docs/results.md see.
+    Made once for all workers (a lock in their shared temporary directory)."""
     from cr_control.experiments import reproduce
 
-    out = tmp_path_factory.mktemp("reproduce_quick")
-    assert reproduce.main(["--quick", "--out", str(out)]) == 0
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent                  # the workers' common directory
+    out, done = shared / "reproduce_quick", shared / "reproduce_quick.done"
+    with open(shared / "reproduce_quick.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(out, ignore_errors=True)
+            assert reproduce.main(["--quick", "--out", str(out)]) == 0
+            done.touch()
     return out
