@@ -92,6 +92,7 @@ def metrics(session: Session) -> dict[str, Any]:
         out.update(robot.robot_metrics(session))
         if "compute_time_us" in status:
             out.update(_percentiles("compute_time", status["compute_time_us"], "us"))
+        out.update(lateness_and_oscillation(status))
     commands = session.joint_commands
     if commands is not None and np.isfinite(commands.effort).any():
         for j, name in enumerate(commands.names):
@@ -117,6 +118,24 @@ def metrics(session: Session) -> dict[str, Any]:
                 value = last[source]
                 out[key] = int(value) if key.endswith("cycles") else value
     out.update(integrity(session))
+    return out
+
+
+def lateness_and_oscillation(status: dict[str, np.ndarray]) -> dict[str, float]:
+    """What a transport delay or late answers do, as the controller saw them: the command
+    age (``command_age``, control periods the command in force had stood when each state
+    came: 1 when every state is answered; p50, p99, max) and the lightest joint's oscillation
+    (``joint_oscillation``: the RMS of its velocity above 5 Hz over 0.1 s, as a fraction of
+    its velocity limit; p50, p99, max), with the smallest ``joint_scale`` the
+    contact-stability monitor set (1: it never acted). Absent where the status has none."""
+    out: dict[str, float] = {}
+    if "command_age" in status:
+        age = status["command_age"]
+        out.update(_percentiles("command_age", age[age > 0.0], "cycles"))
+    if "joint_oscillation" in status:
+        out.update(_percentiles("joint_oscillation", status["joint_oscillation"], "of_limit"))
+    if "joint_scale" in status and len(status["joint_scale"]):
+        out["joint_scale_min"] = float(np.min(status["joint_scale"]))
     return out
 
 

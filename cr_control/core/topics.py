@@ -170,9 +170,13 @@ STATUS_FIELDS = [
 #: followed one's silence; the first is not counted), ``inputs_oversized`` (states,
 #: wrenches and plant sensor messages dropped unread for their size) and
 #: ``sensor_faults`` (wrenches above max_sensor_force or not finite: the last sane one
-#: used). Not in the offline loop (no messages there).
+#: used). ``command_age``: how long, in control periods, the command in force had stood when
+#: this state came (its stamp against the last state's: 1 when every state is answered; a
+#: node that falls behind answers only the newest state, so the ones it skipped show here;
+#: cr_control.schemes.command_gate stops commanding above 10). Not in the offline loop (no
+#: messages there; its controller's ``gate.age`` is the same number).
 NODE_STATUS_FIELDS = ["in_time_us", "out_time_us", "commands_stopped", "states_foreign",
-                      "source_handovers", "inputs_oversized", "sensor_faults"]
+                      "source_handovers", "inputs_oversized", "sensor_faults", "command_age"]
 
 #: The plant's command interface, ``std_msgs/String`` "effort" or "position", latched
 #: (RELIABLE, TRANSIENT_LOCAL, depth 1; published once at start): a controller node whose

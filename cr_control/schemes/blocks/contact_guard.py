@@ -62,6 +62,22 @@ stayed below half the threshold for MONITOR_CALM_S, k rises back to 1 over
 ``stability_restore_time``. The scales multiply the law's impedance: 3.32's B_hat e and
 A_hat e' (and the force admittance's damping d_a), 5.7's k_m and d_m, 3.48/3.76's K_s
 (damping) and the admittance's d_a.
+
+Joint oscillation (the same monitor, in joint space). A transport delay or late answers
+make the lightest joint oscillate first (the damping a loop of inertia M tolerates at period
+T and delay d falls as M / T: the Panda's joint 7, a few 1e-3 kg m^2, oscillated at 1.75x
+its velocity limit with a 3 ms delay while the contact force stayed at 10 N, so the force
+channel saw nothing). Its velocity (``oscillation_joint``, the joint of smallest inertia,
+chosen when the gains are packed) goes through the same two high-passes and window, as a
+fraction of its URDF velocity limit: ``joint_oscillation`` (the RMS, 0.71 x the amplitude of
+a sine), with its own sign-change rate. Above JOINT_OSCILLATION_THRESHOLD with at least
+MONITOR_MIN_CROSSINGS sign changes per second, the joint-space gains (the orientation and
+posture impedances: :func:`cr_control.schemes.blocks.task_space.null_space_torque`) are
+scaled down to ``stability_stiffness_scale`` within MONITOR_DROP_S (``joint_scale``), and
+restored over ``stability_restore_time`` once calm for MONITOR_CALM_S: with a delay it is
+the damping gain itself that destabilises, so both stiffness and damping go down. With
+``stability_monitor`` off it is measured and never acts. Cost: ten floating-point
+operations per cycle.
 """
 
 from __future__ import annotations
@@ -90,6 +106,10 @@ MONITOR_CALM_S = 0.5
 #: 8 per s over 0.25 s.
 MONITOR_CROSSING_WINDOW_S = 0.25
 MONITOR_MIN_CROSSINGS = 10.0
+#: Joint oscillation: the RMS of the lightest joint's high-passed velocity, as a fraction of
+#: its velocity limit, above which the joint-space gains are scaled down (the wiping tasks
+#: stay below 0.005; the 3 ms Panda oscillation reached ~1.2).
+JOINT_OSCILLATION_THRESHOLD = 0.1
 
 #: approach_phase values in the status.
 OFF, APPROACHING, IN_CONTACT, NO_CONTACT = 0.0, 1.0, 2.0, 3.0
@@ -155,33 +175,44 @@ def guard_parameters(m: int) -> list[Param]:
 
 
 def guard_gains(m: int) -> Layout:
-    """Packed guard parameters (names = parameter names; approach_direction normalised)."""
+    """Packed guard parameters (names = parameter names; approach_direction normalised), then
+    the joint the joint-oscillation channel watches (-1: none) and its velocity limit."""
     return Layout(approach_speed=1, contact_threshold=1, approach_distance=1,
                   approach_direction=m, target_timeout=1, wrench_timeout_decay=1,
                   stability_monitor=1, stability_threshold=1, stability_stiffness_scale=1,
                   stability_damping_scale=1, stability_restore_time=1, impact_damping_scale=1,
-                  impact_damping_time=1)
+                  impact_damping_time=1, oscillation_joint=1, oscillation_limit=1)
 
 
 def guard_state(m: int) -> Layout:
     """The guard's state: approach (phase, t_contact, s, s', u), timeouts (pose and wrench
     first-seen times, stale bits, wrench scale w, held pose), an event counter the Python
-    side logs from, and the monitor (filter, energy, scales, calm time, detections)."""
+    side logs from, the monitor (filter, energy, scales, calm time, detections), and its
+    joint channel (filter, energy, crossings, scale, calm time, active, primed)."""
     return Layout(phase=1, t_contact=1, s=1, s_dot=1, u=m, pose_t=1, wrench_t=1, stale=1,
                   wrench_scale=1, events=1, hold_position=m, hold_quaternion=4, x_prev=1,
                   y1=1, y2=1, energy=1, k=1, d=1, calm=1, active=1, detections=1, primed=1,
-                  wrench_seq=1, crossings=1, since_contact=1)
+                  wrench_seq=1, crossings=1, since_contact=1, joint_x_prev=1, joint_y1=1,
+                  joint_y2=1, joint_energy=1, joint_crossings=1, joint_scale=1, joint_calm=1,
+                  joint_active=1, joint_primed=1)
 
 
 #: Status fields the guard adds to every task-space scheme.
 GUARD_STATUS_FIELDS = ["approach_phase", "target_stale", "oscillation_rms", "stiffness_scale",
-                       "damping_scale"]
+                       "damping_scale", "joint_oscillation", "joint_scale"]
+GUARD_STATUS_SIZE = 7
 
 
 @njit(cache=True, error_model="numpy")
 def guard_sizes(m):
     """(gains, state) sizes of :func:`guard_gains` and :func:`guard_state` for m axes."""
-    return m + 12, 2 * m + 26
+    return m + 14, 2 * m + 35
+
+
+# offsets of the joint channel, + m in the guard gains (after impact_damping_time), + 2 m in
+# the guard state (after since_contact)
+_G_JOINT = 12
+_S_JOINT = 26
 
 
 # offsets in the guard gains (after approach_direction: + m)
@@ -206,6 +237,7 @@ def guard_start(g, s, m):
     _, _, _, o_ws, _, _, _, o_mon = _after_u(m)
     s[o_ws] = 1.0
     s[o_mon + 4], s[o_mon + 5] = 1.0, 1.0
+    s[_S_JOINT + 2 * m + 5] = 1.0                    # the joint channel's scale
 
 
 @njit(cache=True, error_model="numpy")
@@ -475,25 +507,85 @@ def scales(s, m):
 
 
 @njit(cache=True, error_model="numpy")
+def joint_monitor(g, s, v, dt, m):
+    """One cycle of the joint channel (module docstring: joint oscillation) on the joint
+    velocities ``v``; returns the joint-space gains' scale."""
+    o, j = _S_JOINT + 2 * m, int(g[_G_JOINT + m])
+    if j < 0:
+        return 1.0
+    limit = g[_G_JOINT + m + 1]
+    x = v[j] / limit if limit > 0.0 and math.isfinite(limit) else v[j]
+    if s[o + 8] == 0.0 or dt <= 0.0:                 # primed: start the filter at the signal
+        if s[o + 8] == 0.0:
+            s[o], s[o + 8] = x, 1.0
+        return s[o + 5]
+    tau = 1.0 / (2.0 * math.pi * MONITOR_HIGHPASS_HZ)
+    a = tau / (tau + dt)
+    y1_old = s[o + 1]
+    y1 = a * (y1_old + x - s[o])
+    y2 = a * (s[o + 2] + y1 - y1_old)
+    crossed = 1.0 if y2 * s[o + 2] < 0.0 else 0.0
+    rate = s[o + 4] + (crossed - dt * s[o + 4]) / MONITOR_CROSSING_WINDOW_S
+    s[o + 4] = rate
+    s[o], s[o + 1], s[o + 2] = x, y1, y2
+    energy = s[o + 3] + dt / MONITOR_WINDOW_S * (y2 * y2 - s[o + 3])
+    s[o + 3] = energy
+    if g[_G_DIRECTION + m + 2] <= 0.0:               # stability_monitor off: measured only
+        return 1.0
+    k_min = g[_G_DIRECTION + m + 4]
+    k = s[o + 5]
+    rms = math.sqrt(max(0.0, energy))
+    if rms > JOINT_OSCILLATION_THRESHOLD and rate >= MONITOR_MIN_CROSSINGS:
+        s[o + 6] = 0.0                               # calm time
+        if s[o + 7] == 0.0:
+            s[o + 7] = 1.0
+            event(s, m)
+        k = max(k_min, k - dt / MONITOR_DROP_S * (1.0 - k_min))
+    elif rms < 0.5 * JOINT_OSCILLATION_THRESHOLD:
+        s[o + 6] += dt
+        if s[o + 6] > MONITOR_CALM_S and k < 1.0:
+            k = min(1.0, k + dt / g[_G_DIRECTION + m + 6] * (1.0 - k_min))
+            if k == 1.0 and s[o + 7] != 0.0:
+                s[o + 7] = 0.0
+                event(s, m)
+    s[o + 5] = k
+    return k
+
+
+@njit(cache=True, error_model="numpy")
+def joint_scale(s, m):
+    """The joint-space gains' scale the joint channel set (1 when calm or off)."""
+    return s[_S_JOINT + 2 * m + 5]
+
+
+@njit(cache=True, error_model="numpy")
 def write_status(s, m, out):
     """GUARD_STATUS_FIELDS into ``out``."""
     _, _, o_stale, _, _, _, _, o = _after_u(m)
     out[0], out[1] = s[_S_PHASE], s[o_stale]
     out[2], out[3], out[4] = math.sqrt(max(0.0, s[o + 3])), s[o + 4], s[o + 5]
+    j = _S_JOINT + 2 * m
+    out[5], out[6] = math.sqrt(max(0.0, s[j + 3])), s[j + 5]
 
 
-def guard_gain_values(values: dict, m: int, default_direction: np.ndarray) -> dict:
+def guard_gain_values(values: dict, m: int, default_direction: np.ndarray,
+                      oscillation_joint: int = -1, oscillation_limit: float = 1.0) -> dict:
     """The packed values: approach_direction normalised, or ``default_direction`` (unit or
-    zero) when it is zero."""
+    zero) when it is zero; the joint the joint channel watches (-1: none) and its velocity
+    limit."""
     u = np.asarray(values["approach_direction"], dtype=float)
     norm = float(np.linalg.norm(u))
     u = u / norm if norm > 0.0 else default_direction
     return {**values, "approach_direction": u,
-            "stability_monitor": float(values["stability_monitor"])}
+            "stability_monitor": float(values["stability_monitor"]),
+            "oscillation_joint": float(oscillation_joint),
+            "oscillation_limit": float(oscillation_limit)}
 
 
-def event_state(internal: np.ndarray, at: int, m: int) -> tuple[float, float, float, float]:
-    """(phase, stale bits, monitor active, detections) of the guard state at ``at``."""
+def event_state(internal: np.ndarray, at: int, m: int) -> tuple[float, float, float, float,
+                                                                 float]:
+    """(phase, stale bits, monitor active, detections, joint channel active) of the guard
+    state at ``at``."""
     o = at + 13 + 2 * m
     return (float(internal[at]), float(internal[at + 6 + m]), float(internal[o + 7]),
-            float(internal[o + 8]))
+            float(internal[o + 8]), float(internal[at + _S_JOINT + 2 * m + 7]))

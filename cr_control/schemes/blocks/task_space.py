@@ -75,6 +75,7 @@ from cr_control.models.urdf import ChainModel, RobotModelError, Tool, load_chain
 from cr_control.schemes.blocks import contact_guard as guard
 from cr_control.schemes.blocks.references import (
     desired_motion,
+    guard_gains_of,
     guard_state_of,
     reference_gains_size,
     reference_state_views,
@@ -269,7 +270,8 @@ def status_fields(model: TaskModel) -> tuple[list[str], list[str]]:
     projected beside position and orientation, still pulls at: 0 once the posture is as
     close to q_p as the task allows), then the guard's fields
     (:data:`contact_guard.GUARD_STATUS_FIELDS`: approach phase, stale targets, the
-    monitor's oscillation RMS and impedance scales).
+    monitor's oscillation RMS and impedance scales, the lightest joint's oscillation and the
+    joint-space gains' scale).
     On the thesis arm the fields up to held are topics' 2-D ones."""
     ax = model.position_axes
     per = lambda names: [f"{name}_{a}" for name in names for a in ax]  # noqa: E731
@@ -377,10 +379,12 @@ def project_null(frame, tau0):
 
 
 @njit(cache=True, error_model="numpy")
-def null_space_torque(task, gains, frame, quat_d, omega_d, posture):
+def null_space_torque(task, gains, frame, quat_d, omega_d, posture, scale=1.0):
     """N^T (G + J_o^T m_o + N_s^T tau_p) (module docstring): gravity beyond the task, the
     orientation impedance and the posture task; zero when the task takes every joint.
-    ``gains`` is the packed NULL_SPACE_GAINS block; returns (tau, e_o, posture error norm)."""
+    ``gains`` is the packed NULL_SPACE_GAINS block, ``scale`` multiplies the orientation's
+    and the posture's stiffness and damping (the contact-stability monitor's joint channel,
+    :func:`contact_guard.joint_monitor`); returns (tau, e_o, posture error norm)."""
     n, m, m_o = int(task[0]), int(task[1]), int(task[2])
     e_o = _entries(orientation_error(quat_d, frame.R), task, 6, m_o)
     if n == m:
@@ -391,12 +395,12 @@ def null_space_torque(task, gains, frame, quat_d, omega_d, posture):
         m_rot = np.empty(m_o)
         for i in range(m_o):
             axis = int(task[6 + i])
-            m_rot[i] = gains[_K_O + axis] * e_o[i] + gains[_D_O + axis] * w_err[i]
+            m_rot[i] = scale * (gains[_K_O + axis] * e_o[i] + gains[_D_O + axis] * w_err[i])
         tau0 += tmatvec(frame.J_o, m_rot)
     posture_error = 0.0
     if n > m + m_o:
         dq = posture - frame.q
-        tau_p = gains[_K_N] * dq - gains[_D_N] * frame.v
+        tau_p = scale * (gains[_K_N] * dq - gains[_D_N] * frame.v)
         stacked = np.empty((m + m_o, n))
         stacked[:m] = frame.J
         stacked[m:] = ORIENTATION_LENGTH * frame.J_o
@@ -490,6 +494,9 @@ def task_front(chain, gains, state, targets, t, dt, q, v, force):
     pace = target_pace(common.limits[2 * q.shape[0]:3 * q.shape[0]], v)
     desired = desired_motion(task[3:6], common.reference, state, targets, t, dt, frame.r,
                              frame.R, q, f, pace)
+    n = q.shape[0]
+    guard.joint_monitor(guard_gains_of(common.reference, m, n), guard_state_of(state, m, n), v,
+                        dt, m)
     return frame, f, desired
 
 
@@ -502,8 +509,10 @@ def task_back(gains, state, frame, tau_task, desired, f, e, out):
     common = common_blocks(gains)[0]
     task, limits, order, null_gains = common.task, common.limits, common.order, common.null_space
     n, m, m_o = int(task[0]), int(task[1]), int(task[2])
+    guard_state = guard_state_of(state, m, n)
     tau_null, e_o, posture_error = null_space_torque(task, null_gains, frame, desired.quat,
-                                                     desired.w, desired.posture)
+                                                     desired.w, desired.posture,
+                                                     guard.joint_scale(guard_state, m))
     tau = tau_task + tau_null + joint_limit_torque(limits, null_gains, frame.q, frame.v)
     clip_to_effort(limits, tau)
     for k in range(n):
@@ -526,5 +535,5 @@ def task_back(gains, state, frame, tau_task, desired, f, e, out):
     if n > m + m_o:
         status[k] = posture_error
         k += 1
-    guard.write_status(guard_state_of(state, m, n), m, status[k:k + 5])
-    return status[k + 5:]
+    guard.write_status(guard_state, m, status[k:k + guard.GUARD_STATUS_SIZE])
+    return status[k + guard.GUARD_STATUS_SIZE:]

@@ -97,6 +97,19 @@ TARGET_REACH_FRACTION = 0.9
 TARGET_AXIS_FRACTION = 0.15
 
 
+def lightest_joint(chain_model, posture) -> tuple[int, float]:
+    """(index, velocity limit) of the chain joint whose diagonal of the joint-space inertia
+    M(q) (Pinocchio's CRBA, the tool included) is smallest at ``posture`` (the zero
+    configuration if empty): the joint a delay makes oscillate first."""
+    q = np.asarray(posture, dtype=float)
+    if q.shape != (chain_model.n,):
+        q = np.zeros(chain_model.n)
+    data = chain_model.model.createData()
+    M = pin.crba(chain_model.model, data, chain_model.configuration(q))
+    j = int(np.argmin(np.diag(M)[:chain_model.n]))
+    return j, float(chain_model.limits.velocity[j])
+
+
 def safe_norm(x: np.ndarray) -> float:
     """|x| without overflow or underflow (scaled by its largest element first)."""
     scale = float(np.max(np.abs(x))) if x.size else 0.0
@@ -344,7 +357,8 @@ class TaskSpaceController(Controller):
         common.view(self.gains, "order")[:] = self.command_order
         NULL_SPACE_GAINS.pack(values, common.view(self.gains, "null_space"))
         posture = values["posture"]
-        guarded = contact_guard.guard_gain_values(values, m, self.default_approach_direction())
+        guarded = contact_guard.guard_gain_values(values, m, self.default_approach_direction(),
+                                                  *self._oscillation_joint)
         reference_gains(m, n).pack({
             **guarded, "reference_relative": float(values["reference_relative"]),
             "desired_force": values.get("desired_force", np.zeros(m)),
@@ -396,6 +410,17 @@ class TaskSpaceController(Controller):
         self._guard_seen = contact_guard.event_state(self.internal, self._guard_at, self.model.m)
         if seen:
             self.wrist.skip_start()
+
+    @property
+    def _oscillation_joint(self) -> tuple[int, float]:
+        """(the chain joint of smallest inertia at the posture (the first state's pose: the
+        zero configuration stands in for it), its velocity limit): what the contact-stability
+        monitor's joint channel watches (:mod:`contact_guard`)."""
+        known = getattr(self, "_lightest", None)
+        if known is None:
+            known = lightest_joint(self.model.chain_model, self.values.get("posture", []))
+            self._lightest = known
+        return known
 
     def default_approach_direction(self) -> np.ndarray:
         """The guarded approach's direction when approach_direction is zero: against the
@@ -581,10 +606,10 @@ class TaskSpaceController(Controller):
         again, chatter detected or calmed): the kernel counts them, this says which."""
         self._events_seen = self.internal[self._events_at]
         m = self.model.m
-        phase, stale, active, detections = contact_guard.event_state(self.internal,
-                                                                     self._guard_at, m)
-        old_phase, old_stale, old_active, _ = self._guard_seen
-        self._guard_seen = (phase, stale, active, detections)
+        seen = contact_guard.event_state(self.internal, self._guard_at, m)
+        phase, stale, active, detections, joint_active = seen
+        old_phase, old_stale, old_active, _, old_joint = self._guard_seen
+        self._guard_seen = seen
         g = self.values
         if phase != old_phase and phase == contact_guard.IN_CONTACT:
             self.log_info(f"{self.scheme}: contact at t = {t:.3f} s (force against the approach "
@@ -609,3 +634,12 @@ class TaskSpaceController(Controller):
         elif old_active and not active:
             self.log_info(f"{self.scheme}: contact calm again: nominal impedance restored "
                           f"(t = {t:.3f} s)")
+        joint = self.model.joint_names[self._oscillation_joint[0]]
+        if joint_active and not old_joint:
+            self.log_warning(f"{self.scheme}: {joint} oscillating (RMS of its velocity above "
+                             f"{contact_guard.JOINT_OSCILLATION_THRESHOLD:g} of its limit, "
+                             f"t = {t:.3f} s): orientation and posture gains "
+                             f"x{g['stability_stiffness_scale']:g}")
+        elif old_joint and not joint_active:
+            self.log_info(f"{self.scheme}: {joint} calm again: orientation and posture gains "
+                          f"restored (t = {t:.3f} s)")
