@@ -39,23 +39,63 @@ Boundary layer (remark 3.3.1): sgn(s) is replaced by s/Delta where |s| < Delta,
 component by component (sgn(s) in 3.48 is the vector of the components' signs), i.e.
 sat(s_i/Delta) = clip(s_i/Delta, -1, 1): continuous, and equal to sgn(s_i) outside.
 
+Its width from the period and the delay. Inside the layer the switching term is d s / Delta,
+and s = e' + K_1 e + K_2 z: a damping of d / Delta on each task axis. A damping loop of
+apparent mass M, period T and a delay of D cycles, v_{k+1} = v_k - (c_d T / M) v_{k-D}, is
+stable only for c_d T / M < c_max(D) = 2 sin(pi / (2 (2 D + 1))) (2, 1, 0.62, 0.45, 0.35 for
+D = 0..4; the root locus of z^{D+1} - z^D + g crosses the unit circle there). So each
+cycle the layer is widened to at least
+
+    Delta_min = d T / (mu c_max(D) M_min),     mu = BOUNDARY_LAYER_MARGIN (0.5)
+
+with M_min the task's smallest apparent mass (the smallest eigenvalue of Lambda at the
+measured pose), T the cycle's step and D ``command_delay_cycles`` (the driver's delay the
+controller is told; DEFAULT_DELAY_CYCLES where it is not): the switching term then takes at
+most half of the damping the delayed loop tolerates, the rest left to K_s s and the
+impedance. The widened layer is in the status (``boundary_layer``). On the robots' wiping
+task it does not bind at the profiles' delay (the Panda: d = 5.1 N, M_min ~ 2.5 kg, T = 1 ms,
+D = 1: Delta_min = 4 mm/s against the 50 mm/s given); it does as d grows (3.51: with the
+model's acceleration error) or the delay does, where a fixed layer turned the switching
+term into an unstable damping; on the thesis's arm it never binds, so those runs are as
+printed.
+
 Discretisation: z is integrated by explicit Euler with the dt of each cycle, z(0) = 0.
 Every matrix is m x m on an m-axis position task (2 on the thesis's arm, 3 on a spatial one).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
-from cr_control.core.linalg import matmul, matvec, spd_inverse
+from cr_control.core.linalg import matmul, matvec, min_eigenvalue_sym, spd_inverse
 from cr_control.core.packing import Layout
 from cr_control.core.parameters import Bound, Param, matrix
 
+#: The switching term's share of the damping a delayed loop tolerates (module docstring).
+BOUNDARY_LAYER_MARGIN = 0.5
+#: The delay (cycles) the layer is sized for where the controller is not told one: a
+#: driver applies an answer in its next cycle at the earliest (libfranka, ur_robot_driver).
+DEFAULT_DELAY_CYCLES = 1
+
+
+def delayed_damping_bound(delay_cycles: int) -> float:
+    """c_max(D) = 2 sin(pi / (2 (2 D + 1))): the largest stable c_d T / M of a damping loop
+    with a delay of D cycles (module docstring)."""
+    return 2.0 * math.sin(math.pi / (2.0 * (2 * max(0, int(delay_cycles)) + 1)))
+
+
+def layer_rate(delay_cycles: int) -> float:
+    """1 / (mu c_max(D)): Delta_min = d T layer_rate / M_min (module docstring)."""
+    return 1.0 / (BOUNDARY_LAYER_MARGIN * delayed_damping_bound(delay_cycles))
+
 
 def sliding_status_fields(axes: tuple[str, ...]) -> list[str]:
-    """Status fields of the sliding-mode part: s and z per axis, then d."""
-    return [f"s_{a}" for a in axes] + [f"z_{a}" for a in axes] + ["d"]
+    """Status fields of the sliding-mode part: s and z per axis, d, then the boundary layer
+    in use (Delta, widened by the period and the delay: module docstring)."""
+    return [f"s_{a}" for a in axes] + [f"z_{a}" for a in axes] + ["d", "boundary_layer"]
 
 
 def sliding_parameters(m: int, D: float, K: float, K_s: float,
@@ -71,13 +111,28 @@ def sliding_parameters(m: int, D: float, K: float, K_s: float,
         Param("K_s", matrix(m, K_s), "Sliding-surface feedback gain K_s (3.48, 3.76).", "spd", m,
               bound=Bound.GAIN),
         Param("boundary_layer", boundary_layer, "Boundary layer Delta: sgn(s_i) is replaced by "
-              "s_i/Delta where |s_i| < Delta (remark 3.3.1) (m/s).", "positive", bound=Bound.SCALE),
+              "s_i/Delta where |s_i| < Delta (remark 3.3.1) (m/s); widened each cycle to at "
+              "least d T / (0.5 c_max(delay) M_min), so the switching term takes at most half "
+              "the damping the delayed loop tolerates (status boundary_layer).", "positive",
+              bound=Bound.SCALE),
     ]
 
 
 def sliding_gains(m: int) -> Layout:
-    """Packed sliding gains (names = parameter names; d_sign = SlidingCompensator.D_SIGN)."""
-    return Layout(D=(m, m), K_1=(m, m), K_2=(m, m), K_s=(m, m), boundary_layer=1, d_sign=1)
+    """Packed sliding gains (names = parameter names; d_sign = SlidingCompensator.D_SIGN;
+    layer_rate: :func:`layer_rate` of the delay)."""
+    return Layout(D=(m, m), K_1=(m, m), K_2=(m, m), K_s=(m, m), boundary_layer=1, d_sign=1,
+                  layer_rate=1)
+
+
+@njit(cache=True, error_model="numpy")
+def boundary_layer_width(delta, rate, d, dt, Lam):
+    """Delta, widened to d dt rate / M_min (M_min the smallest eigenvalue of the task's
+    apparent mass ``Lam``; module docstring)."""
+    mass = min_eigenvalue_sym(Lam)
+    if not mass > 0.0 or not dt > 0.0:
+        return delta
+    return max(delta, d * dt * rate / mass)
 
 
 @njit(cache=True, error_model="numpy")
@@ -108,11 +163,11 @@ def compensator_update(D, K_1, K_2, d_sign, z, z_dot, dt, e, e_dot, v_d, a_d, A_
 
 @njit(cache=True, error_model="numpy")
 def sliding_views(gains, m):
-    """(D, K_1, K_2, K_s, Delta, d_sign) of a packed sliding_gains block."""
+    """(D, K_1, K_2, K_s, Delta, d_sign, layer_rate) of a packed sliding_gains block."""
     mm = m * m
     return (gains[:mm].reshape((m, m)), gains[mm:2 * mm].reshape((m, m)),
             gains[2 * mm:3 * mm].reshape((m, m)), gains[3 * mm:4 * mm].reshape((m, m)),
-            gains[4 * mm], gains[4 * mm + 1])
+            gains[4 * mm], gains[4 * mm + 1], gains[4 * mm + 2])
 
 
 class SlidingCompensator:
