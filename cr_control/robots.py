@@ -71,6 +71,18 @@ class Robot:
     #: the torque answering a 500 Hz RTDE state is executed by the robot's next 2 ms control
     #: step (ur_robot_driver's documentation, "Torque control") -> 1 cycle, 2 ms.
     command_delay_cycles: int = 0
+    #: What the driver takes: ``effort`` (torques), or ``position`` / ``velocity`` through a
+    #: forward_command_controller. Then the plant is the arm behind its joint servos
+    #: (scenario ``joint_servo``) and the task-space laws run in the admittance outer loop
+    #: (:mod:`cr_control.schemes.blocks.admittance_outer_loop`).
+    command_interface: str = "effort"
+    #: The joint servos behind a position or velocity interface: bandwidth (rad/s) and damping
+    #: ratio (the plant's ``servo_bandwidth``, ``servo_damping``; sources at SERVOS).
+    servo: tuple[float, float] = (0.0, 0.0)
+    #: The joint acceleration (rad/s^2) and jerk (rad/s^3) limits the driver holds the command
+    #: stream to, one per joint (empty: none); the outer loop keeps inside them too.
+    acceleration_limit: tuple[float, ...] = ()
+    jerk_limit: tuple[float, ...] = ()
 
 
 #: Where a profile's wrench comes from:
@@ -106,11 +118,75 @@ _UR5 = dict(
     rate_hz=500.0, robot_compensates_gravity=True, robot_compensates_friction=True,
     approach_speed=0.015, command_delay_cycles=1)
 
+#: The joint servos of the position and velocity interfaces (bandwidth rad/s, damping ratio;
+#: cr_sim.plants.joint_servo). UR publishes no servo bandwidth: ur_robot_driver's servoj runs
+#: with servoj_gain 2000 and servoj_lookahead_time 0.03 s (its defaults), read as a PD with the
+#: lookahead as derivative time: sqrt(2000) = 44.7 rad/s, 0.03 sqrt(2000) / 2 = 0.67 (our
+#: reading, not UR's statement). Franka's joint position interface runs libfranka's joint
+#: impedance (default stiffness 3000 N m/rad on the shoulder, ~2 kg m^2 at the ready pose):
+#: ~40 rad/s, critically damped (assumed). UFactory publishes none: 40 rad/s, 0.7 assumed.
+SERVOS = {"ur": (44.7, 0.67), "franka": (40.0, 1.0), "xarm": (40.0, 0.7)}
+#: The reflected rotor inertia of every joint behind a servo (kg m^2): none of the makers
+#: publishes it; MuJoCo Menagerie's UR5e model sets 0.1 on every joint. Without it the
+#: wrists, whose links weigh 1e-4-1e-2 kg m^2 about their axes, would be servoed as softly
+#: as their inertia times omega_s^2 (a few N m/rad): the table's friction twisted the
+#: Panda's and the xArm's tool by 10-20 mrad.
+ARMATURE = 0.1
+#: The laws' gains on a position or velocity interface, where the contact acts on the law's
+#: (virtual) arm through the servos (~45 rad/s), the driver's delay and the force sensor:
+#: the admittance must stay well below the servos' bandwidth. Chapter 5: the impedance's
+#: inertia m_m = 4 kg (section 5.3's 1.2 kg rang against the 5 kN/m table through the UR5's
+#: servo at ~50 rad/s: 0.80 N RMS, the stability monitor twice), the normal damping 150 N s/m
+#: (fuzzy: its sets 50/150/250 N s/m, lambda 0.4: k_m = 60 N/m at the middle one, as section
+#: 5.3's), the tangential damping critical for m_m = 4 kg and k_t = 3000 N/m. Chapter 3: the
+#: force admittance's damping 150 N s/m (50: the robust law erred by 1.55 N RMS on the UR5;
+#: 400 lifted the reference 5 cm at the first touch and the start check gave up, on the
+#: effort UR5 too).
+SERVO_GAINS = {"ch5": {"m_m": 4.0, "tangential_damping": 2.0 * math.sqrt(4.0 * 3000.0)},
+               "impedance": {"d_m": 150.0},
+               "fuzzy_unidirectional": {"d_s": 50.0, "d_med": 150.0, "d_b": 250.0,
+                                        "lambda": 0.4},
+               "ch3": {"force_admittance_damping": 150.0}}
+#: libfranka's joint limits for the Panda's command streams (rate_limiting.h: kMaxJointAcceleration,
+#: kMaxJointJerk): a position or velocity stream beyond them is rejected (a "..._discontinuity"
+#: reflex) unless rate-limited.
+PANDA_ACCELERATION = (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0)
+PANDA_JERK = (7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0)
+_UR5_SERVO = dict(_UR5, servo=SERVOS["ur"], acceleration_limit=(5.0,) * 6)
+_UR5_SERVO["driver"] = ("ur_robot_driver: forward_position_controller (servoj over RTDE, "
+                        "servoj_gain 2000, lookahead 0.03 s), 500 Hz; no published joint "
+                        "acceleration limits (ur_description's placeholder 5 rad/s^2)")
+_UR5_VELOCITY = dict(_UR5_SERVO, driver="ur_robot_driver: forward_velocity_controller "
+                     "(speedj over RTDE), 500 Hz; acceleration 5 rad/s^2 (ur_description's "
+                     "placeholder)")
+_PANDA_POSITION = dict(
+    _PANDA, servo=SERVOS["franka"], acceleration_limit=PANDA_ACCELERATION,
+    jerk_limit=PANDA_JERK,
+    driver="franka_ros2 (libfranka): joint position interface at 1 kHz, the command held to "
+           "libfranka's joint velocity, acceleration and jerk limits (franka::limitRate)")
+_XARM7 = dict(
+    urdf_file="package://example-robot-data/robots/xarm_description/urdf/xarm7.urdf",
+    base_link="link_base", tip_link="link_eef", home=(0.0, 0.2, 0.0, 1.0, 0.0, 0.8, 0.0),
+    source="UFACTORY xArm 7, 7 joints: example-robot-data 6.0.0, from xarm_ros2's "
+           "xarm_description; home: tool pointing down 0.49 m in front of the base",
+    flange="link_eef", rate_hz=150.0, command_delay_cycles=1, servo=SERVOS["xarm"],
+    acceleration_limit=(20.0,) * 7, approach_speed=0.015,
+    driver="xarm_ros2 (uf_robot_hardware/UFRobotSystemHardware): joint positions in servo "
+           "mode (set_servo_angle_j) at its controller_manager's 150 Hz; joint acceleration "
+           "20 rad/s^2 (xarm_moveit_config's joint_limits.yaml)")
+
 ROBOTS = {
     "panda": Robot("panda", **_PANDA, wrench="estimated"),
     "panda_ft": Robot("panda_ft", **_PANDA, wrench="wrist"),
     "ur5": Robot("ur5", **_UR5, wrench="tcp"),
     "ur5_ft": Robot("ur5_ft", **_UR5, wrench="wrist"),
+    "ur5_position": Robot("ur5_position", **_UR5_SERVO, wrench="tcp",
+                          command_interface="position"),
+    "ur5_velocity": Robot("ur5_velocity", **_UR5_VELOCITY, wrench="tcp",
+                          command_interface="velocity"),
+    "panda_position": Robot("panda_position", **_PANDA_POSITION, wrench="estimated",
+                            command_interface="position"),
+    "xarm7": Robot("xarm7", **_XARM7, wrench="wrist", command_interface="position"),
 }
 
 #: Wiping: circle radius (m), angular frequency (rad/s), contact force (N) and the table.
@@ -252,11 +328,36 @@ def plant_node_values(r: Robot) -> dict[str, Any]:
 def plant_values(r: Robot) -> dict[str, Any]:
     """The plant scenario of the wiping task: the robot at home on a compliant table,
     compensating what the real robot compensates, with its wrench source (the plant node's
-    ``rate_hz`` is the profile's ``rate_hz``)."""
-    return {**robot_parameters(r), "scenario": "urdf_surface",
-            "initial_joint_positions": list(r.home), "surface": "plane",
-            "surface_normal": [0.0, 0.0, 1.0], "stiffness": TABLE_STIFFNESS,
-            "damping": TABLE_DAMPING, "friction_coulomb": TABLE_FRICTION, **plant_wrench(r)}
+    ``rate_hz`` is the profile's ``rate_hz``); on a position or velocity interface, the arm
+    behind its joint servos (:func:`servo_values`)."""
+    values = {**robot_parameters(r), "scenario": "urdf_surface",
+              "initial_joint_positions": list(r.home), "surface": "plane",
+              "surface_normal": [0.0, 0.0, 1.0], "stiffness": TABLE_STIFFNESS,
+              "damping": TABLE_DAMPING, "friction_coulomb": TABLE_FRICTION, **plant_wrench(r)}
+    if r.command_interface == "effort":
+        return values
+    for name in ("robot_compensates_gravity", "robot_compensates_friction"):
+        del values[name]            # the servos compensate both: they are the robot's controller
+    return {**values, "scenario": "joint_servo", **servo_values(r)}
+
+
+def servo_values(r: Robot) -> dict[str, Any]:
+    """The joint servos of a position or velocity interface (plant parameters)."""
+    return {"command_interface": r.command_interface, "servo_bandwidth": r.servo[0],
+            "servo_damping": r.servo[1], "acceleration_limit": list(r.acceleration_limit),
+            "jerk_limit": list(r.jerk_limit), "joint_armature": [ARMATURE]}
+
+
+def outer_loop_values(r: Robot, scheme: str) -> dict[str, Any]:
+    """On a position or velocity interface: the admittance outer loop's parameters (the
+    command stream kept inside the driver's acceleration and jerk limits) and the laws' gains
+    that keep the admittance well below the servos' bandwidth (SERVO_GAINS); none on effort."""
+    if r.command_interface == "effort":
+        return {}
+    gains = SERVO_GAINS["ch5"] if scheme in ("impedance", "fuzzy_unidirectional") else         SERVO_GAINS["ch3"]
+    return {"command_interface": r.command_interface,
+            "command_acceleration_limit": list(r.acceleration_limit),
+            "command_jerk_limit": list(r.jerk_limit), **gains, **SERVO_GAINS.get(scheme, {})}
 
 
 def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
@@ -284,4 +385,5 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
         values.update(ROBUST_MODEL)
     if scheme == "nn_adaptive_impedance":
         values.update(NN_GAINS, rbf_seed=list(r.home), force_ramp_time=NN_FORCE_RAMP_TIME)
+    values.update(outer_loop_values(r, scheme))
     return values

@@ -188,13 +188,3 @@ def test_the_rate_limiter_keeps_a_jerk_limited_stream_smooth():
     assert np.max(np.abs(v)) <= 2.0 + 1e-9 and np.max(np.abs(a)) <= 10.0 + 1e-6
     assert np.max(np.abs(np.diff(a[:, 0]))) / 1e-3 <= 1000.0 + 1e-3
     assert p[-1] == pytest.approx([1.0, -1.0]) and np.all(np.abs(p) <= 1.0)
-    # stop_at_target (the outer loop's): a far target inside the limits reached, not passed
-    state = limiter_state(np.zeros(n))
-    positions = []
-    for _ in range(1000):
-        rate_limit(state, limits, np.array([0.7, -0.7]), False, 1e-3, out, True)
-        positions.append(out.copy())
-    p = np.array(positions)
-    a = np.diff(np.diff(np.vstack([np.zeros((2, n)), p]), axis=0), axis=0) / 1e-6
-    assert p[-1] == pytest.approx([0.7, -0.7]) and np.max(np.abs(p)) <= 0.7 + 1e-12
-    assert np.max(np.abs(a)) <= 10.0 + 1e-6 and np.max(np.abs(np.diff(a[:, 0]))) <= 1.0 + 1e-6

@@ -38,7 +38,8 @@ from cr_control.models.urdf import load_chain
 from cr_control.offline import robot_period, run_scheme
 from cr_control.schemes.blocks.wrist_sensor import ZERO_START_WINDOW_S
 
-PROFILES = tuple(robots.ROBOTS)
+#: The torque-interface profiles (the position and velocity ones: test_admittance_outer_loop).
+PROFILES = tuple(name for name, r in robots.ROBOTS.items() if r.command_interface == "effort")
 CASES = [(r, s) for r in PROFILES for s in robots.TASK_SPACE_SCHEMES]
 #: Each profile's robot (the lockstep comparison runs one variant of each).
 LOCKSTEP_CASES = [(r, s) for r in ("panda", "ur5") for s in robots.TASK_SPACE_SCHEMES]

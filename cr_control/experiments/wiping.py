@@ -10,7 +10,8 @@ gravity setting the opposite of the robot's (a mismatch). Its figures (:func:`wi
 
 - force error mean and RMS (N): the true normal force f_n (the plant's contact force along
   the table's normal) against the desired normal force, over the second half of the run;
-- radial path RMS (m): | |r - c_d| - a_d | over the second half, with c_d, a_d the circle
+- radial path RMS (m): | |r - c_d| - a_d | over the second half (r the measured tip: on a
+  position or velocity interface the robot's, not the law's virtual arm's), with c_d, a_d the circle
   the reference r_d draws (a least-squares circle through r_d in the table's plane), the
   centre error |c - c_d| (m), c the circle fitted to the measured path r, and the path
   error RMS |r - r_d| in the plane (m: a tool stuck on the circle has a small radial error
@@ -88,6 +89,9 @@ def wiping_metrics(run: offline.OfflineRun, controller: Any) -> dict[str, float]
     f_n = run.true_force[:, 2]
     f_d = run.column("f_d_z")
     r = np.column_stack([run.column("r_x"), run.column("r_y")])
+    tip = getattr(controller, "tip_positions", None)      # the outer loop's: the real tip
+    if callable(tip):
+        r = tip(run.position[:, :len(controller.state_joint_names)])[:, :2]
     r_d = np.column_stack([run.column("r_d_x"), run.column("r_d_y")])
     late = t >= t[0] + 0.5 * (t[-1] - t[0])
     out: dict[str, float] = {}

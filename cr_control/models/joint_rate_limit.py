@@ -26,8 +26,8 @@ consecutive commands). Step 2's stopping distance keeps a command that runs into
 position limit from arriving there at speed. A command is never integrated into a jump:
 whatever is asked, the stream's velocity, acceleration and jerk stay inside their limits.
 Like the drivers' limiters, it does not plan: a far position command is passed at speed and
-come back to; the admittance outer loop asks for room to stop at it too
-(``stop_at_target``).
+come back to (the admittance outer loop never asks for one: its virtual arm is moved onto
+what the limiter lets through).
 
 State (3 n): [p, v, a]; limits (5 n): [lower, upper, v_max, A, J], inf where none.
 """
@@ -78,13 +78,10 @@ def stop_speed(amax, jmax, T, distance):
 
 
 @njit(cache=True, error_model="numpy")
-def rate_limit(state, limits, command, velocity_command, period, out, stop_at_target=False):
+def rate_limit(state, limits, command, velocity_command, period, out):
     """One period of the limiter (module docstring): the limited position (or, with
     ``velocity_command``, velocity) of every joint into ``out``; ``state`` [p, v, a] is
-    advanced. ``stop_at_target``: a position command is also approached with room to stop
-    at it (the velocity towards it at most sqrt(2 A d), d the distance left, as towards a
-    position limit), so that a far one is reached without overshoot. Returns the number of
-    joints whose command was changed by more than 1e-9 (rad or rad/s). A non-finite
+    advanced. Returns the number of joints whose command was changed by more than 1e-9 (rad or rad/s). A non-finite
     command leaves the state and ``out`` as the last period's continuation (the joint keeps
     its velocity, within the limits) and counts as changed."""
     n = command.shape[0]
@@ -102,11 +99,7 @@ def rate_limit(state, limits, command, velocity_command, period, out, stop_at_ta
         elif velocity_command:
             v_cmd = c
         else:
-            x = min(max(c, lo), hi)
-            v_cmd = (x - p) / T
-            if stop_at_target and amax < inf:
-                reach = stop_speed(amax, jmax, T, abs(x - p))
-                v_cmd = min(max(v_cmd, -reach), reach)
+            v_cmd = (min(max(c, lo), hi) - p) / T
         # 2. velocity bounds, with room to stop before the position limits
         v_hi, v_lo = vmax, -vmax
         if amax < inf:

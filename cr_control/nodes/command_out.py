@@ -32,7 +32,7 @@ class CommandOut:
 
     def __init__(self, node: Node, publisher: Publisher, joint_names: Sequence[str],
                  interface: str, relieved: Callable[[], None] = lambda: None) -> None:
-        field = "position" if interface == "position" else "effort"
+        field = interface if interface in ("position", "velocity") else "effort"
         n = len(joint_names)
         self.node, self.publisher, self.relieved = node, publisher, relieved
         self._command = cdr.Writer(cdr.joint_state, name=list(joint_names), **{field: n})

@@ -1,7 +1,7 @@
 """The controller's check of the plant's command interface.
 
-The plant advertises what it takes on the latched ``/plant/command_interface`` ("effort"
-or "position"). A scheme that commands the other kind never publishes a command: the
+The plant advertises what it takes on the latched ``/plant/command_interface`` ("effort",
+"position" or "velocity"). A scheme that commands the other kind never publishes a command: the
 controller logs one ERROR line (``adaptive_impedance commands efforts but the plant takes
 positions (scenario dynamic_constraint): refusing to drive it``) and exits with code 1.
 While a plant advertises but its value has not arrived yet, states are not answered (a
@@ -27,7 +27,7 @@ from cr_control.nodes.spin import quiet_on_shutdown
 from cr_control.supervision.controller_inputs import ControllerInputs
 
 #: What each command interface sends, for the refusal message.
-INTERFACE_NOUNS = {"effort": "efforts", "position": "positions"}
+INTERFACE_NOUNS = {"effort": "efforts", "position": "positions", "velocity": "velocities"}
 #: How long a refusing node waits for the plant's scenario name (s) before it exits.
 SCENARIO_WAIT_S = 1.0
 #: A node with no plant interface yet looks for an advertising plant at most this often (s).

@@ -33,7 +33,9 @@ The robot's controller, per control period T (the plant node's, the profile's ra
    clipped to the URDF's ``<limit effort>``: without contact each joint follows its
    reference as (2 zeta_s omega_s s + omega_s^2) / (s^2 + 2 zeta_s omega_s s + omega_s^2)
    (a PD on the reference's position and velocity; bandwidth ``servo_bandwidth``, damping
-   ratio ``servo_damping``; a ramp is followed without lag); the URDF's joint damping D and
+   ratio ``servo_damping``; a ramp is followed without lag; M(q) includes the joints'
+   reflected rotor inertia, ``joint_armature``, which the arm's dynamics carry too); the
+   URDF's joint damping D and
    friction F are compensated; a contact force f deflects the tip by about
    Lambda(q)^-1 f / omega_s^2 (Lambda the tip's apparent mass): the servo's stiffness.
 
@@ -134,6 +136,12 @@ PARAMETERS = [_default(p) for p in urdf_surface.PARAMETERS if p.name not in ROBO
     Param("jerk_limit", [], "Joint jerk limits (rad/s^3): one value or one per joint; empty: "
           "none. Given (with acceleration limits), the commands are limited as libfranka's "
           "rate limiter limits them.", "nonnegative_vector", read_only=True, bound=1e6),
+    Param("joint_armature", [], "Reflected rotor inertia of each joint (kg m^2, added to "
+          "the joint's own inertia: pinocchio's armature): one value or one per joint; "
+          "empty: none. A geared joint's rotor is heavy seen through its gear: MuJoCo "
+          "Menagerie's UR5e model sets 0.1 on every joint. It stiffens the servos of the "
+          "light wrist joints (their stiffness is their inertia times omega_s^2).",
+          "nonnegative_vector", read_only=True, bound=Bound.INERTIA),
     Param("stop_deceleration", DEFAULT_STOP_DECELERATION, "Safe stop: the deceleration (rad/s^2) "
           "of joints without an acceleration limit.", "positive", read_only=True, bound=1e4),
 ]
@@ -163,6 +171,10 @@ class JointServoSurface(Plant):
         self.arm = urdf_surface.URDFSurface(arm_values)
         arm, n = self.arm, self.arm.chain.n
         self._n = n
+        armature = _limit(values, "joint_armature", n)
+        if np.any(np.isfinite(armature)):
+            arm.model.armature = np.where(np.isfinite(armature), armature, 0.0)
+            arm.step_rate = arm.stiffest_rate(arm.state[:n])     # the substep rule anew
         self.command_interface = values["command_interface"]
         self._velocity_interface = self.command_interface == "velocity"
         self.joint_names = arm.joint_names

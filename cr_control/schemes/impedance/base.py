@@ -57,7 +57,13 @@ from cr_control.core.packing import Layout
 from cr_control.core.parameters import Param, ParameterError, resolve
 from cr_control.models.reach import chain_reach, first_axis, off_the_axis
 from cr_control.models.urdf import JOINT_FRICTION_EPSILON
-from cr_control.schemes.blocks import contact_guard, references, safe_stop, wrist_sensor
+from cr_control.schemes.blocks import (
+    admittance_outer_loop,
+    contact_guard,
+    references,
+    safe_stop,
+    wrist_sensor,
+)
 from cr_control.schemes.blocks.references import TARGETS, reference_gains, reference_state
 from cr_control.schemes.blocks.task_space import (
     NULL_SPACE_GAINS,
@@ -145,6 +151,15 @@ class TaskSpaceController(Controller):
 
     TASK_SPACE = True
 
+    def __new__(cls, values: dict | None = None, *args: Any, **kwargs: Any):
+        """The law itself on an effort interface; on a position or velocity interface
+        (``command_interface``) the law inside the admittance outer loop
+        (:class:`~cr_control.schemes.blocks.admittance_outer_loop.AdmittanceOuterLoop`), which
+        drives a virtual arm with it and sends that arm's motion."""
+        if (values or {}).get("command_interface", "effort") != "effort":
+            return admittance_outer_loop.AdmittanceOuterLoop(cls, values)
+        return super().__new__(cls)
+
     JOINT_NAMES_PARAMETER = JOINT_NAMES
     #: Overrides of ROBOT_PARAMETERS' defaults (name -> (default, description)).
     ROBOT_DEFAULTS: dict[str, tuple[Any, str]] = {}
@@ -190,7 +205,7 @@ class TaskSpaceController(Controller):
         common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
         return (common + cls.robot_parameters() + safe_stop.parameters(thesis) + wrist_sensor.PARAMETERS
                 + cls.reference_parameters(model.m, thesis) + NULL_SPACE_PARAMETERS
-                + cls.law_parameters(model, thesis))
+                + cls.law_parameters(model, thesis) + admittance_outer_loop.parameters(given))
 
     @classmethod
     def reference_parameters(cls, m: int, thesis: bool) -> list[Param]:

@@ -1,0 +1,160 @@
+"""The five task-space laws on arms that take joint positions or velocities, through the
+admittance outer loop (cr_control.schemes.blocks.admittance_outer_loop), offline on the
+position- and velocity-interface profiles (cr_control.robots: ur5_position, ur5_velocity,
+panda_position, xarm7; the plant cr_sim.plants.joint_servo, with the profiles' transport
+delay and the plant node's command limits).
+
+Checked: a task-space law on a position interface is the law inside the loop (its own
+parameters, status and targets, the loop's after them); wiping the default table (mu = 0.3),
+judged by the plant's TRUE normal force and the REAL tip's path over the second half of a 6 s
+run: force error RMS <= 0.5 N and radial path RMS <= 3 mm (what does not hold yet is marked
+xfail with the measured figure); the command stream inside the joints' velocity, acceleration
+and (Panda) jerk limits; a law that gives up brakes through a command that decelerates to
+rest at the acceleration limit; a robot that does not move (its own stop) keeps the command
+within max_lead of it, and nothing drifts.
+
+Measured (offline, 6 s, default table, with the plant node's limits; force error RMS N /
+radial RMS mm):
+
+| scheme | ur5_position | panda_position | xarm7 |
+|---|---|---|---|
+| adaptive_impedance | 0.064 / 0.07 | 0.040 / 0.41 | 0.156 / 11.93 |
+| robust_adaptive_impedance | 0.065 / 0.05 | 0.041 / 0.41 | 0.158 / 11.84 |
+| nn_adaptive_impedance | 0.064 / 0.05 | 0.040 / 0.41 | 0.152 / 5.00 |
+| impedance | 0.202 / 0.09 | 0.186 / 0.39 | 0.080 / 0.31 |
+| fuzzy_unidirectional | 0.202 / 0.09 | 0.186 / 0.39 | 0.080 / 0.31 |
+
+On the xArm the chapter 3 laws' circle is off by 4 mm and its radius by 9 mm: the law's own
+(virtual) path is as far off (8.7 mm RMS over 8 s), as on an effort xArm: the discrete-time
+rule bounds the orientation damping on the URDF's 1.4e-4 kg m^2 wrist to 0.08 N m s/rad and
+the tool tilts by up to 0.19 rad while it wipes. Not yet solved.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from robot_data import needs_erd
+
+from cr_control import offline, robots
+from cr_control.experiments.wiping import Case, run_case
+from cr_control.schemes.blocks.admittance_outer_loop import AdmittanceOuterLoop
+from cr_control.schemes.registry import make_controller
+
+pytestmark = needs_erd
+
+PROFILES = ("ur5_position", "panda_position", "xarm7")
+CASES = [(r, s) for r in PROFILES for s in robots.TASK_SPACE_SCHEMES]
+FORCE_ERR_RMS_N = 0.5
+RADIAL_RMS_M = 3e-3
+#: What does not hold yet (module docstring): case -> measured radial RMS (mm, 6 s).
+OPEN = {("xarm7", "adaptive_impedance"): 11.93, ("xarm7", "robust_adaptive_impedance"): 11.84,
+        ("xarm7", "nn_adaptive_impedance"): 5.00}
+
+
+def marks(case):
+    if case in OPEN:
+        return [pytest.mark.xfail(strict=True, reason=f"radial path RMS {OPEN[case]} mm on the "
+                                  "xArm (module docstring)")]
+    return []
+
+
+def test_a_law_on_a_position_interface_is_the_law_inside_the_loop():
+    r = robots.robot("ur5_position")
+    values = robots.controller_values(r, "impedance")
+    loop = make_controller("impedance", values)
+    assert isinstance(loop, AdmittanceOuterLoop) and loop.command_interface == "position"
+    assert type(loop.law).__name__ == "ImpedanceController"
+    assert loop.law.values["robot_compensates_gravity"]            # the virtual arm: none
+    assert loop.law.values["command_interface"] == "effort"
+    assert loop.status_fields[:len(loop.law.status_fields)] == loop.law.status_fields
+    assert loop.status_fields[-2:] == ["virtual_lead", "command_clipped"]
+    assert loop.reference_fields == loop.law.reference_fields and loop.TASK_SPACE
+    effort = make_controller("impedance", robots.controller_values(robots.robot("ur5"), "impedance"))
+    assert not isinstance(effort, AdmittanceOuterLoop) and effort.command_interface == "effort"
+    # a live gain reaches the law; the loop's own gains stay its own
+    assert loop.check_parameter("d_m", 200.0) is None
+    loop.set_parameter("d_m", 200.0)
+    assert loop.law.values["d_m"] == 200.0 and loop.values["d_m"] == 200.0
+    loop.set_parameter("ik_damping", 0.02)
+    assert loop._ik_damping == 0.02 and "ik_damping" not in loop.law.values
+    assert loop.set_target_wrench(np.array([0.0, 0.0, 5.0]))
+
+
+@pytest.mark.parametrize("robot,scheme", [pytest.param(*c, marks=marks(c)) for c in CASES],
+                         ids=[f"{r}-{s}" for r, s in CASES])
+def test_wiping_through_the_outer_loop(robot, scheme):
+    values, errors = run_case(Case(scheme, robot, duration=6.0, node_limits=True))
+    print(f"\n{robot} {scheme}: force error RMS {values['force_err_rms_N']:.3f} N, radial "
+          f"{values['radial_rms_m'] * 1e3:.2f} mm, peak {values['force_peak_N']:.2f} N")
+    assert not errors and values["safe_stop_reason"] == 0.0 and values["gave_up"] == 0.0
+    assert values["contact_lost_s"] == 0.0
+    assert values["force_err_rms_N"] <= FORCE_ERR_RMS_N
+    assert values["radial_rms_m"] <= RADIAL_RMS_M
+
+
+def limits_of(robot: str, controller) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r = robots.robot(robot)
+    n = len(controller.state_joint_names)
+    v = controller.chain_model.limits.velocity
+    a = np.broadcast_to(np.array(r.acceleration_limit, dtype=float), (n,))
+    j = (np.broadcast_to(np.array(r.jerk_limit, dtype=float), (n,)) if r.jerk_limit
+         else np.full(n, np.inf))
+    return v, a, j
+
+
+@pytest.mark.parametrize("robot", ["panda_position", "ur5_velocity"])
+def test_the_command_stream_stays_inside_the_limits_and_the_brake_decelerates_to_rest(robot):
+    """Mid-wipe the law gives up (as after a failed start check): the loop's brake, from the
+    last command at the acceleration limits, one factor on every joint, then held."""
+    gave_up_at = 3.0
+
+    def give_up(k, t, controller, plant):
+        if t >= gave_up_at and not controller.gave_up:
+            controller.give_up("test: the law gives up")
+
+    run = offline.run_scheme("impedance", 4.5, robot=robot, hook=give_up)
+    controller, _ = offline.build_scheme("impedance", robot=robot)
+    period = offline.robot_period(robot)
+    v_lim, a_lim, j_lim = limits_of(robot, controller)
+    velocity = robot.endswith("velocity")
+    # the command's velocity at each cycle (a position stream: its finite difference)
+    v = run.command.copy() if velocity else np.vstack([np.zeros(len(v_lim)),
+                                                        np.diff(run.command, axis=0) / period])
+    a = np.diff(v, axis=0) / period
+    assert np.all(np.abs(v) <= v_lim * (1 + 1e-9))
+    assert np.all(np.abs(a[1:]) <= a_lim * (1 + 1e-6))
+    if np.all(np.isfinite(j_lim)):
+        assert np.all(np.abs(np.diff(a[1:], axis=0)) / period <= j_lim * (1 + 1e-6))
+    speed = np.max(np.abs(v[run.time >= gave_up_at + period]), axis=1)
+    assert speed[0] > 1e-3                                          # it was moving
+    assert speed[-1] < 1e-9 and np.all(np.diff(speed) <= 1e-9)      # down to rest, never up
+    assert np.max(np.abs(run.velocity[-1, :len(v_lim)])) < 2e-3      # the robot at rest too
+
+
+def test_a_robot_that_does_not_follow_keeps_the_command_within_max_lead():
+    """The robot stands still (its own stop): the measured joints never move while the law
+    wipes; the command stays within max_lead of them (the virtual arm drawn back), so a
+    robot that resumes is not sent a far pose."""
+    controller, plant = offline.build_scheme("adaptive_impedance", robot="ur5_position")
+    m = plant.measurement()
+    n = len(controller.state_joint_names)
+    q, v = m.position[:n].copy(), np.zeros(n)
+    period = offline.robot_period("ur5_position")
+    J = plant.tip_jacobian(q)
+    leads = []
+    for k in range(2000):
+        out = controller.step(k * period, q, v, np.concatenate([m.force, m.torque]))
+        dq = out.command - q
+        leads.append(float(np.linalg.norm(J @ dq)))
+    assert max(leads) <= controller.values["max_lead"] * 1.05
+    assert np.isfinite(leads).all()
+
+
+def test_nothing_drifts_while_the_robot_lags():
+    """Wiping 8 s on the UR5 behind its servos: the centre of the real circle stays on the
+    reference's (drift-free anchoring to the measured joints)."""
+    values, _ = run_case(Case("impedance", "ur5_position", duration=8.0))
+    assert values["centre_err_m"] <= 1e-3 and math.isfinite(values["path_err_rms_m"])
