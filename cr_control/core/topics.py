@@ -173,7 +173,8 @@ STATUS_FIELDS = [
 #: used). ``command_age``: how long, in control periods, the command in force had stood when
 #: this state came (its stamp against the last state's: 1 when every state is answered; a
 #: node that falls behind answers only the newest state, so the ones it skipped show here;
-#: cr_control.schemes.command_gate stops commanding above 10). Not in the offline loop (no
+#: cr_control.schemes.command_gate stops commanding when it averages above 3). Not in the
+#: offline loop (no
 #: messages there; its controller's ``gate.age`` is the same number).
 NODE_STATUS_FIELDS = ["in_time_us", "out_time_us", "commands_stopped", "states_foreign",
                       "source_handovers", "inputs_oversized", "sensor_faults", "command_age"]

@@ -11,7 +11,7 @@ A law that fails for good does not keep a command in force: after
 ``max_bad_cycles`` cycles in a row whose output was held because of the law (a
 non-finite command or internal state) or had a command element at its limit on the same
 side (+-max_effort, or the URDF effort the task-space kernels clip to: ``command_limits``),
-or at a state answered too late (:mod:`cr_control.schemes.command_gate`),
+or with answers too late (:mod:`cr_control.schemes.command_gate`),
 :attr:`Controller.commanding` turns False. A scheme with a braking command
 (:meth:`Controller.brake_command`: the task-space schemes) then outputs it every cycle and
 the node keeps publishing it, because a real robot's forward_command_controller applies
@@ -53,7 +53,14 @@ from cr_control.core.linalg import all_finite
 from cr_control.core.parameters import Bound, Param
 from cr_control.core.rate_limited_log import RateLimitedLog
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
-from cr_control.schemes.command_gate import RESUME, STOP_BAD, STOP_LATE, CommandGate
+from cr_control.schemes.command_gate import (
+    FRESH_MEAN_CYCLES,
+    FRESH_STATE_CYCLES,
+    RESUME,
+    STOP_BAD,
+    STOP_LATE,
+    CommandGate,
+)
 
 #: Parameters of every controller node.
 COMMON_PARAMETERS = [
@@ -316,7 +323,7 @@ class Controller(ABC):
         self.gave_up = False
         #: The give-up and resume rule (:mod:`cr_control.schemes.command_gate`); the stamp
         #: commanding stopped at (the law's clock stands from there until it resumes).
-        self.gate = CommandGate(self.values["max_bad_cycles"])
+        self.gate = CommandGate(self.values["max_bad_cycles"], self.values.get("control_period"))
         self._stopped_at: float | None = None
         self._guard = np.zeros(2 * self.n_joints)
         #: Where fault warnings go (the controller node routes them to its ROS logger), and
@@ -598,7 +605,12 @@ class Controller(ABC):
                     self.command_limits[j]) else ")"))
 
     def _emit(self, severity: str, text: str) -> None:
-        (self.log_error if severity == "error" else self.log_info)(text)
+        """A gate line to the logger of its severity, one call site each (rclpy's logger
+        refuses two severities from one line of code)."""
+        if severity == "error":
+            self.log_error(text)
+        else:
+            self.log_info(text)
 
     def _stop(self, reason: str, stamp: float) -> None:
         """Stop commanding (the gate already has): one line, later ones rate-limited."""
@@ -611,9 +623,9 @@ class Controller(ABC):
             + ("braking (the braking command is published in its place)" if self.brakes
                else "commands stopped; the plant's watchdog will brake")
             + f". Commanding resumes after {gate.resume_cycles} cycles in a row with fresh "
-            f"states (at most {gate.fresh_cycles:g} periods apart) and the law's output "
-            "finite and inside its limits; until then the law integrates nothing and its "
-            f"clock stands (stop {self.stops})"))
+            f"states (at most {FRESH_STATE_CYCLES:g} periods apart, {FRESH_MEAN_CYCLES:g} on "
+            "average) and the law's output finite and inside its limits; until then the law "
+            f"integrates nothing and its clock stands (stop {self.stops})"))
 
     def _resume(self, stamp: float) -> None:
         self.commanding = True
