@@ -33,7 +33,7 @@ def test_answers_late_on_average_give_up_once_and_resume_once():
     force stands 4 periods each time) for 600 cycles, then every state again. One stop, once
     the age averaged over 100 states passes 3 (after 110 late answers); no resume while the
     lateness lasts; one resume RESUME_CYCLES fresh cycles after the average is back below
-    1.5 (179 states after the last late one). A state 60 periods late stops at once."""
+    1.5 (179 states after the last late one). A state 250 periods late stops at once."""
     steps = [(1, 0)] * 100 + [(4, 0)] * 600 + [(1, 0)] * 800
     gate = cg.CommandGate(50)
     events = decisions(gate, steps)
@@ -44,7 +44,8 @@ def test_answers_late_on_average_give_up_once_and_resume_once():
     assert stop == pytest.approx(100 + 100 * math.log(3.0), abs=2)          # 210
     assert resume == pytest.approx(700 + 100 * math.log(6.0) + cg.RESUME_CYCLES, abs=3)  # 1077
     assert gate.period == pytest.approx(T)
-    assert decisions(cg.CommandGate(50), [(1, 0)] * 10 + [(60, 0)])[-1] == cg.STOP_LATE
+    assert decisions(cg.CommandGate(50), [(1, 0)] * 10 + [(250, 0)])[-1] == cg.STOP_LATE
+    assert decisions(cg.CommandGate(50), [(1, 0)] * 10 + [(61, 0)])[-1] == cg.NONE
 
 
 def test_stalls_of_tens_of_ms_on_a_few_per_cent_of_the_cycles_do_not_stop_it():
@@ -94,7 +95,7 @@ def test_a_law_saturating_on_and_off_stops_once_not_every_70_ms():
 
 def test_ages_between_fresh_and_late_neither_stop_nor_resume():
     """The hysteresis in the age: while stopped, a state 5 periods late (above
-    FRESH_STATE_CYCLES 3, below LATE_STATE_CYCLES 50) resets the fresh run."""
+    FRESH_STATE_CYCLES 3, below LATE_STATE_CYCLES 200) resets the fresh run."""
     gate = cg.CommandGate(50)
     assert set(decisions(gate, [(1, 0)] * 10 + [(5, 0)] * 3)) == {cg.NONE}
     gate.stop()
@@ -120,7 +121,7 @@ def integrators(ctl) -> np.ndarray:
 
 
 def test_the_controller_brakes_once_on_a_late_state_holds_its_law_and_its_clock():
-    """adaptive_impedance on its thesis plant, settled 1 s; then a state 60 ms late (beyond
+    """adaptive_impedance on its thesis plant, settled 1 s; then a state 250 ms late (beyond
     max_stamp_gap: held, and LATE_STATE_CYCLES): one error line, the brake from the next
     state; what the law integrates does not move while stopped (dt = 0) and its clock
     stands, so after RESUME_CYCLES fresh states (and the average age back under 1.5) it
@@ -133,10 +134,10 @@ def test_the_controller_brakes_once_on_a_late_state_holds_its_law_and_its_clock(
         m = plant.measurement()
         plant.step(ctl.step(m.time, m.position, m.velocity, m.force).command, T)
     m = plant.measurement()
-    stamp = m.time + 0.060                      # 60 periods late
+    stamp = m.time + 0.250                      # 250 periods late
     out = ctl.step(stamp, m.position, m.velocity, m.force)
     assert not ctl.commanding and ctl.stops == 1 and len(errors) == 1
-    assert "a state 61 periods (61 ms) after the last one, more than 50" in errors[0]
+    assert "a state 251 periods (251 ms) after the last one, more than 200" in errors[0]
     assert "braking" in errors[0]
     brake = ctl.braking(m.position, m.velocity)
     np.testing.assert_array_equal(out.command, brake)
@@ -153,7 +154,7 @@ def test_the_controller_brakes_once_on_a_late_state_holds_its_law_and_its_clock(
             np.testing.assert_array_equal(out.reference, stood)       # the clock stands
         assert k < 1000
     print(f"resumed after {k} states")
-    assert cg.RESUME_CYCLES <= k <= cg.RESUME_CYCLES + 200
+    assert cg.RESUME_CYCLES <= k <= cg.RESUME_CYCLES + 200     # the average's 161 first
     assert len(infos) == 1 and "commanding resumes" in infos[0]
     plant.step(out.command, T)
     m = plant.measurement()
@@ -175,10 +176,10 @@ def test_stop_and_resume_lines_go_to_an_rclpy_logger():
     ctl.log_error, ctl.log_info = logger.error, logger.info
     m = plant.measurement()
     ctl.step(m.time, m.position, m.velocity, m.force)
-    ctl.step(m.time + 0.060, m.position, m.velocity, m.force)       # late: stop (error)
+    ctl.step(m.time + 0.250, m.position, m.velocity, m.force)       # late: stop (error)
     assert not ctl.commanding
     k = 1
     while not ctl.commanding and k < 1000:                          # resume (info)
-        ctl.step(m.time + 0.060 + k * T, m.position, m.velocity, m.force)
+        ctl.step(m.time + 0.250 + k * T, m.position, m.velocity, m.force)
         k += 1
     assert ctl.commanding and ctl.stops == 1

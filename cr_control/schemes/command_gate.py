@@ -46,9 +46,10 @@ from __future__ import annotations
 
 import math
 
-#: One state more than this many periods after the last is late (50: max_stamp_gap's 50 ms
-#: at 1 kHz)...
-LATE_STATE_CYCLES = 50.0
+#: One state more than this many periods after the last is late (200: twice the plant's
+#: watchdog, which has braked by then; a shorter stall restarts the law's stepping beyond
+#: max_stamp_gap, and a loaded 2-core machine stalls for 60 ms now and then)...
+LATE_STATE_CYCLES = 200.0
 #: ... and so are states whose age averaged over AGE_WINDOW_CYCLES is above this.
 LATE_MEAN_CYCLES = 3.0
 AGE_WINDOW_CYCLES = 100.0
