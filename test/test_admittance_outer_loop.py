@@ -158,3 +158,35 @@ def test_nothing_drifts_while_the_robot_lags():
     reference's (drift-free anchoring to the measured joints)."""
     values, _ = run_case(Case("impedance", "ur5_position", duration=8.0))
     assert values["centre_err_m"] <= 1e-3 and math.isfinite(values["path_err_rms_m"])
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("robot,scheme", [("ur5_position", "adaptive_impedance"),
+                                          ("ur5_velocity", "impedance")])
+def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
+    """Plant (joint_servo), controller (the law in the outer loop) and recorder over ROS in
+    lockstep for 2 s: the commands (JointState positions or velocities) and the law's status
+    are the offline loop's."""
+    from ros_probe import next_domain
+
+    from cr_control.analysis.analyze import load_session
+    from cr_control.tools.session import Session, SessionConfig
+
+    duration = 2.0
+    cfg = SessionConfig(scheme=scheme, duration=duration, mode="lockstep", out=tmp_path,
+                        domain_id=next_domain(), name="run", robot=robot,
+                        overrides=["plant.ft_noise_std=[0.0, 0.0]"])
+    s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
+    run = offline.run_scheme(scheme, duration, robot=robot,
+                             plant_overrides={"ft_noise_std": [0.0, 0.0]})
+    rate = robots.robot(robot).rate_hz
+    rows = np.rint(s.status["stamp"] * rate).astype(int)
+    assert len(rows) > 0.9 * duration * rate and np.all(s.status["held"] == 0.0)
+    for field in ("e_x", "e_z", "f_z", "tau_2", "q_c_2", "virtual_lead"):
+        diff = np.abs(s.status[field] - run.column(field)[rows]).max()
+        print(f"{robot} {scheme} {field}: lockstep vs offline {diff:.3g}")
+        assert diff < 1e-6, field
+    cmd_rows = np.rint(s.joint_commands.time * rate).astype(int)
+    sent = s.joint_commands.velocity if robot.endswith("velocity") else s.joint_commands.position
+    assert np.abs(sent - run.command[cmd_rows]).max() < 1e-9
+    assert s.contact_wrench.force[s.contact_wrench.time >= 0.5, 2].min() > 0.0

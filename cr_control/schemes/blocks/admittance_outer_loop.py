@@ -73,7 +73,9 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
+from numba import njit
 
+from cr_control.core.linalg import matmul, matvec, spd_inverse, tmatvec
 from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.models.joint_rate_limit import (
     limiter_state,
@@ -150,6 +152,41 @@ def parameters(given: dict[str, Any] | None) -> list[Param]:
     return [COMMAND_INTERFACE] + (PARAMETERS if interface in INTERFACES[1:] else [])
 
 
+# -- compiled: the same numbers in a node and in the offline loop (numpy's BLAS may round the
+# last bit differently with the arrays' alignment, and the contact loop amplifies it) ---------
+@njit(cache=True, error_model="numpy")
+def external_torque(J, f, tau):
+    """tau + J_v^T f (J the 6 x n tip Jacobian, linear rows first)."""
+    return tau + tmatvec(J[:3].copy(), f)
+
+
+@njit(cache=True, error_model="numpy")
+def dls_command(J, rows, lam2, e, q_m, q_v, v_v, Jv, anchor, velocity):
+    """The command before the limits (module docstring, 3.): q_m + J^+ e + N (q_v - q_m), or
+    J^+ (J_v(q_v) q_v' + k_a e) + N (q_v' + k_a (q_v - q_m)) on a velocity interface; J^+ =
+    J^T (J J^T + lambda^2 I)^-1 over the task rows, N = I - J^+ J."""
+    k, n = rows.shape[0], q_m.shape[0]
+    Jr = np.empty((k, n))
+    er = np.empty(k)
+    for i in range(k):
+        Jr[i] = J[rows[i]]
+        er[i] = e[rows[i]]
+    A = matmul(Jr, Jr.T.copy())
+    for i in range(k):
+        A[i, i] += lam2
+    pinv = matmul(Jr.T.copy(), spd_inverse(A))
+    null = -matmul(pinv, Jr)
+    for i in range(n):
+        null[i, i] += 1.0
+    if velocity:
+        task = np.empty(k)
+        twist = matvec(Jv, v_v)
+        for i in range(k):
+            task[i] = twist[i] + anchor * er[i]
+        return matvec(pinv, task) + matvec(null, v_v + anchor * (q_v - q_m))
+    return q_m + matvec(pinv, er) + matvec(null, q_v - q_m)
+
+
 class AdmittanceOuterLoop(Controller):
     """The task-space law ``law_class`` on a position or velocity interface (module
     docstring); ``law`` is the law's own controller, driving the virtual arm."""
@@ -207,7 +244,8 @@ class AdmittanceOuterLoop(Controller):
         rows = [int(r) for r in task[3:3 + m]]
         if n >= m + m_o:
             rows += [3 + int(r) for r in task[6:6 + m_o]]
-        self._rows = np.array(rows, dtype=int)
+        self._rows = np.array(rows, dtype=np.int64)
+        self._no_jacobian = np.zeros((len(rows), n))
         self._order = law.command_order.astype(int)     # command index -> chain index
         lim = chain_model.limits
         try:
@@ -310,7 +348,8 @@ class AdmittanceOuterLoop(Controller):
         f = np.zeros(3)
         wrist = getattr(self.law, "wrist", None)
         for i in range(k):
-            law = self.law.step(t - dt + (i + 1) * h, x[:n].copy(), x[n:2 * n].copy(), force)
+            stamp = t if i == k - 1 else t - (k - 1 - i) * h      # the state's own stamp last
+            law = self.law.step(stamp, x[:n].copy(), x[n:2 * n].copy(), force)
             tau[self._order] = law.command
             f[self._force_rows] = law.status[self._force_at]
             holding = wrist is not None and wrist.active and wrist.holding
@@ -338,7 +377,7 @@ class AdmittanceOuterLoop(Controller):
             qp = self.chain_model.configuration(q)
             J = pin.computeFrameJacobian(self._pin, self._data, qp, self._tip,
                                          pin.LOCAL_WORLD_ALIGNED)
-            return pin.aba(self._pin, self._data, qp, v, tau + J[:3].T @ f)
+            return pin.aba(self._pin, self._data, qp, v, external_torque(J, f, tau))
 
         k1v, k1a = v0, acceleration(q0, v0)
         k2v = v0 + 0.5 * dt * k1a
@@ -362,24 +401,20 @@ class AdmittanceOuterLoop(Controller):
         x = self.internal
         q_v, v_v = x[:n], x[n:2 * n]
         e, J = self._pose_error(q_m, q_v)
-        lead = float(np.linalg.norm(e))
+        lead = math.sqrt(sum(x * x for x in e.tolist()))
         if lead > self._max_lead:            # draw the virtual arm back towards the robot
             scale = self._max_lead / lead
             q_v[:] = q_m + scale * (q_v - q_m)
             v_v *= scale
             e, J = self._pose_error(q_m, q_v)
-        Jr = J[self._rows]
-        lam2 = self._ik_damping ** 2
-        pinv = Jr.T @ np.linalg.solve(Jr @ Jr.T + lam2 * np.eye(len(self._rows)), np.eye(len(self._rows)))
-        null = np.eye(n) - pinv @ Jr
         if self._velocity:
             qp_v = self.chain_model.configuration(q_v)
-            Jv = pin.computeFrameJacobian(self._pin, self._data, qp_v, self._tip,
-                                          pin.LOCAL_WORLD_ALIGNED)[self._rows]
-            k = self._anchor
-            wanted = pinv @ (Jv @ v_v + k * e[self._rows]) + null @ (v_v + k * (q_v - q_m))
+            Jv = np.array(pin.computeFrameJacobian(self._pin, self._data, qp_v, self._tip,
+                                                   pin.LOCAL_WORLD_ALIGNED))[self._rows]
         else:
-            wanted = q_m + pinv @ e[self._rows] + null @ (q_v - q_m)
+            Jv = self._no_jacobian
+        wanted = dls_command(J, self._rows, self._ik_damping ** 2, e, np.asarray(q_m, dtype=float),
+                             q_v.copy(), v_v.copy(), Jv, self._anchor, self._velocity)
         if dt <= 0.0:                        # the first state: hold (nothing to rate-limit)
             return (np.zeros(n) if self._velocity else q_m.copy()), lead, 0
         limiter = x[2 * n:]
@@ -404,7 +439,7 @@ class AdmittanceOuterLoop(Controller):
                                      pin.LOCAL_WORLD_ALIGNED)
         measured = self._measured_data.oMf[self._tip]
         e = np.concatenate([r_v - measured.translation,
-                            pin.log3(R_v @ measured.rotation.T)])
+                            pin.log3(matmul(R_v, measured.rotation.T.copy()))])
         return e, np.array(J)
 
     def tip_positions(self, positions: np.ndarray) -> np.ndarray:
