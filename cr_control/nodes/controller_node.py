@@ -338,6 +338,7 @@ class ControllerNode(LifecycleNode):
 
     def _subscribe_once_settled(self) -> None:
         self._settle_timer.cancel()
+        self.get_logger().info(f"subscribing to {topics.JOINT_STATES} now")   # before it exists
         self._subscribe_states()
 
     def _on_named(self) -> None:
