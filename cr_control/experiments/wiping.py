@@ -1,11 +1,10 @@
 """The wiping task judged as a robot user judges it: by the true contact force and the path.
 
 One case runs a task-space scheme on a robot profile (:mod:`cr_control.robots`) in the
-offline loop at the profile's rate, without transport delay unless the case asks for one
-(``plant`` may set the plant node's ``command_delay_cycles`` and ``late_burst_*``: the
-profile's driver delays its commands a cycle, which the stiff table's figures do not take yet),
-with ``node_limits`` the plant node's command limits too, optionally on a 10x stiffer table,
-started ``clearance`` above it, with the controller's model scaled, or with the controller's
+offline loop at the profile's rate with its driver's transport delay (``plant`` may set
+the plant node's ``command_delay_cycles`` and ``late_burst_*``), with ``node_limits`` the plant
+node's command limits too, optionally on a 10x stiffer table, started ``clearance`` above it,
+with the controller's model scaled, or with the controller's
 gravity setting the opposite of the robot's (a mismatch). Its figures (:func:`wiping_metrics`):
 
 - force error mean and RMS (N): the true normal force f_n (the plant's contact force along
@@ -63,7 +62,7 @@ class Case:
     def overrides(self) -> tuple[dict[str, Any], dict[str, Any]]:
         """(controller, plant) overrides of the case."""
         c: dict[str, Any] = dict(self.controller)
-        p: dict[str, Any] = {"command_delay_cycles": 0, **dict(self.plant)}
+        p: dict[str, Any] = dict(self.plant)
         if self.table == "stiff":
             p["stiffness"] = robots.TABLE_STIFFNESS * STIFF_FACTOR
         if self.clearance:
@@ -198,14 +197,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--clearance", type=float, default=0.0)
     p.add_argument("--model-scale", type=float, default=1.0)
     p.add_argument("--duration", type=float, default=8.0)
-    p.add_argument("--delay", type=int, default=0,
-                   help="the driver's transport delay (cycles; the plant's command_delay_cycles)")
+    p.add_argument("--delay", type=int, default=None,
+                   help="the driver's transport delay (cycles; the plant's command_delay_cycles; "
+                        "default: the profile's)")
     p.add_argument("--node-limits", action="store_true",
                    help="with the plant node's effort and torque-rate limits")
     args = p.parse_args(argv)
     try:
         cases = [Case(s, r, tb, args.clearance, args.model_scale, duration=args.duration,
-                      plant=(("command_delay_cycles", args.delay),),
+                      plant=(() if args.delay is None else
+                             (("command_delay_cycles", args.delay),)),
                       node_limits=args.node_limits)
                  for s in args.schemes.split(",") for r in args.robots.split(",")
                  for tb in args.tables.split(",")]

@@ -60,6 +60,7 @@ from cr_control.models.urdf import JOINT_FRICTION_EPSILON
 from cr_control.schemes.blocks import (
     admittance_outer_loop,
     contact_guard,
+    gain_bounds,
     references,
     safe_stop,
     wrist_sensor,
@@ -204,8 +205,37 @@ class TaskSpaceController(Controller):
             next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model)}
         common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
         return (common + cls.robot_parameters() + safe_stop.parameters(thesis) + wrist_sensor.PARAMETERS
-                + cls.reference_parameters(model.m, thesis) + NULL_SPACE_PARAMETERS
+                + cls.reference_parameters(model.m, thesis)
+                + cls.null_space_parameters(model, thesis, given or {})
+                + gain_bounds.parameters(thesis)
                 + cls.law_parameters(model, thesis) + admittance_outer_loop.parameters(given))
+
+    @classmethod
+    def null_space_parameters(cls, model: TaskModel, thesis: bool,
+                              given: dict[str, Any]) -> list[Param]:
+        """The null-space gains, bounded on a robot by the discrete-time rule at its period
+        and delay (:mod:`cr_control.schemes.blocks.gain_bounds`: defaults lowered into the
+        bounds, values beyond them refused); the thesis's arm has no null space."""
+        if thesis:
+            return NULL_SPACE_PARAMETERS
+        return gain_bounds.null_space_parameters(
+            NULL_SPACE_PARAMETERS, cls.gain_loops(cls.carried_model(given), given, thesis))
+
+    @classmethod
+    def carried_model(cls, given: dict[str, Any]) -> TaskModel:
+        """The task model with the tool the wrist sensor carries (as :meth:`__init__` builds
+        it): the inertias the gains act through."""
+        wrist = resolve(wrist_sensor.PARAMETERS, {p.name: given[p.name]
+                                                  for p in wrist_sensor.PARAMETERS if p.name in given})
+        return task_model({**cls.robot_values(given), **wrist}, cls.MODEL_FREE)
+
+    @classmethod
+    def gain_loops(cls, model: TaskModel, values: dict[str, Any],
+                   thesis: bool) -> dict[str, gain_bounds.Loop]:
+        """The discrete-time rule's loops on ``model`` at the period and delay ``values``
+        declare (:func:`gain_bounds.loops`)."""
+        period, delay = gain_bounds.loop_settings(values, thesis)
+        return gain_bounds.loops(model, gain_bounds.home_pose(model, values), period, delay)
 
     @classmethod
     def reference_parameters(cls, m: int, thesis: bool) -> list[Param]:
@@ -260,6 +290,7 @@ class TaskSpaceController(Controller):
         values = {**values, "joint_names": given or chain_joints}
         self._check_sizes(values)
         self.check_values(values)
+        self.check_gains(values)
         self.reference_fields, base_status = status_fields(self.model)
         self._law_fields = self.law_status_fields()
         self._status = base_status + self._law_fields
@@ -362,6 +393,22 @@ class TaskSpaceController(Controller):
             if not lower <= q <= upper:
                 raise ParameterError(f"posture: {name} = {q:g} is outside its URDF limits "
                                      f"[{lower:g}, {upper:g}]")
+
+    def check_gains(self, values: dict, changed: str | None = None) -> None:
+        """Refuse a stiffness and damping pair of the null space that the discrete-time rule
+        finds unstable together (:func:`gain_bounds.check_pairs`; ``changed``: the parameter
+        being set, named first in the line)."""
+        robot = self.robot_values(values)
+        if self.is_thesis_robot(robot):
+            return
+        gain_bounds.check_pairs(values, self.gain_loops(self.model, values, False), changed)
+
+    def check_parameter(self, name: str, value: Any) -> str | None:
+        try:
+            self.check_gains({**self.values, name: value}, name)
+        except ValueError as exc:
+            return str(exc)
+        return super().check_parameter(name, value)
 
     def pack_gains(self) -> None:
         """Copy the parameter values into the packed gains the kernel reads."""
