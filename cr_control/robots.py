@@ -152,7 +152,13 @@ SERVO_GAINS = {"ch5": {"m_m": 4.0, "tangential_damping": 2.0 * math.sqrt(4.0 * 3
 #: reflex) unless rate-limited.
 PANDA_ACCELERATION = (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0)
 PANDA_JERK = (7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0)
-_UR5_SERVO = dict(_UR5, servo=SERVOS["ur"], acceleration_limit=(5.0,) * 6)
+#: The guarded approach's speed on a position or velocity interface (m/s): the robot follows
+#: its command through the servo's lag and the driver's delay, and at 15 mm/s the first touch
+#: of a 30 kN/m table bounced the tool off for 14-64 ms (UR5, Panda, xArm); at 5 mm/s it stays
+#: on in every scheme (peaks 10.1-12.9 N).
+SERVO_APPROACH_SPEED = 0.005
+_UR5_SERVO = dict(_UR5, servo=SERVOS["ur"], acceleration_limit=(5.0,) * 6,
+                  approach_speed=SERVO_APPROACH_SPEED)
 _UR5_SERVO["driver"] = ("ur_robot_driver: forward_position_controller (servoj over RTDE, "
                         "servoj_gain 2000, lookahead 0.03 s), 500 Hz; no published joint "
                         "acceleration limits (ur_description's placeholder 5 rad/s^2)")
@@ -161,7 +167,7 @@ _UR5_VELOCITY = dict(_UR5_SERVO, driver="ur_robot_driver: forward_velocity_contr
                      "placeholder)")
 _PANDA_POSITION = dict(
     _PANDA, servo=SERVOS["franka"], acceleration_limit=PANDA_ACCELERATION,
-    jerk_limit=PANDA_JERK,
+    jerk_limit=PANDA_JERK, approach_speed=SERVO_APPROACH_SPEED,
     driver="franka_ros2 (libfranka): joint position interface at 1 kHz, the command held to "
            "libfranka's joint velocity, acceleration and jerk limits (franka::limitRate)")
 _XARM7 = dict(
@@ -170,7 +176,7 @@ _XARM7 = dict(
     source="UFACTORY xArm 7, 7 joints: example-robot-data 6.0.0, from xarm_ros2's "
            "xarm_description; home: tool pointing down 0.49 m in front of the base",
     flange="link_eef", rate_hz=150.0, command_delay_cycles=1, servo=SERVOS["xarm"],
-    acceleration_limit=(20.0,) * 7, approach_speed=0.015,
+    acceleration_limit=(20.0,) * 7, approach_speed=SERVO_APPROACH_SPEED,
     driver="xarm_ros2 (uf_robot_hardware/UFRobotSystemHardware): joint positions in servo "
            "mode (set_servo_angle_j) at its controller_manager's 150 Hz; joint acceleration "
            "20 rad/s^2 (xarm_moveit_config's joint_limits.yaml)")

@@ -71,6 +71,7 @@ STUDIES = {
     "test_hostile_targets.py::test_zero_ft_every_0_2_s_while_pressing_10_n_leaves_the_true_force_alone": 1,
     "test_hostile_targets.py::test_a_target_pose_out_of_reach_never_needs_a_reflex": 2,
     "test_admittance_outer_loop.py::test_wiping_through_the_outer_loop": 2,
+    "test_admittance_outer_loop.py::test_a_stiff_table_is_held_after_the_guarded_approach": 1,
 }
 
 

@@ -8,7 +8,8 @@ Checked: a task-space law on a position interface is the law inside the loop (it
 parameters, status and targets, the loop's after them); wiping the default table (mu = 0.3),
 judged by the plant's TRUE normal force and the REAL tip's path over the second half of a 6 s
 run: force error RMS <= 0.5 N and radial path RMS <= 3 mm (what does not hold yet is marked
-xfail with the measured figure); the command stream inside the joints' velocity, acceleration
+xfail with the measured figure); a 30 kN/m table held after the guarded approach (peak <= 1.5 x
+the target, no contact lost); the command stream inside the joints' velocity, acceleration
 and (Panda) jerk limits; a law that gives up brakes through a command that decelerates to
 rest at the acceleration limit; a robot that does not move (its own stop) keeps the command
 within max_lead of it, and nothing drifts.
@@ -18,11 +19,11 @@ radial RMS mm):
 
 | scheme | ur5_position | panda_position | xarm7 |
 |---|---|---|---|
-| adaptive_impedance | 0.064 / 0.07 | 0.040 / 0.41 | 0.156 / 11.93 |
-| robust_adaptive_impedance | 0.065 / 0.05 | 0.041 / 0.41 | 0.158 / 11.84 |
-| nn_adaptive_impedance | 0.064 / 0.05 | 0.040 / 0.41 | 0.152 / 5.00 |
-| impedance | 0.202 / 0.09 | 0.186 / 0.39 | 0.080 / 0.31 |
-| fuzzy_unidirectional | 0.202 / 0.09 | 0.186 / 0.39 | 0.080 / 0.31 |
+| adaptive_impedance | 0.064 / 0.07 | 0.040 / 0.42 | 0.154 / 12.19 |
+| robust_adaptive_impedance | 0.065 / 0.06 | 0.041 / 0.42 | 0.156 / 12.12 |
+| nn_adaptive_impedance | 0.064 / 0.05 | 0.041 / 0.42 | 0.150 / 5.10 |
+| impedance | 0.228 / 0.09 | 0.204 / 0.43 | 0.099 / 0.31 |
+| fuzzy_unidirectional | 0.228 / 0.09 | 0.204 / 0.43 | 0.099 / 0.31 |
 
 On the xArm the chapter 3 laws' circle is off by 4 mm and its radius by 9 mm: the law's own
 (virtual) path is as far off (8.7 mm RMS over 8 s), as on an effort xArm: the discrete-time
@@ -50,8 +51,8 @@ CASES = [(r, s) for r in PROFILES for s in robots.TASK_SPACE_SCHEMES]
 FORCE_ERR_RMS_N = 0.5
 RADIAL_RMS_M = 3e-3
 #: What does not hold yet (module docstring): case -> measured radial RMS (mm, 6 s).
-OPEN = {("xarm7", "adaptive_impedance"): 11.93, ("xarm7", "robust_adaptive_impedance"): 11.84,
-        ("xarm7", "nn_adaptive_impedance"): 5.00}
+OPEN = {("xarm7", "adaptive_impedance"): 12.19, ("xarm7", "robust_adaptive_impedance"): 12.12,
+        ("xarm7", "nn_adaptive_impedance"): 5.10}
 
 
 def marks(case):
@@ -93,6 +94,30 @@ def test_wiping_through_the_outer_loop(robot, scheme):
     assert values["contact_lost_s"] == 0.0
     assert values["force_err_rms_N"] <= FORCE_ERR_RMS_N
     assert values["radial_rms_m"] <= RADIAL_RMS_M
+
+
+#: Item of the stiff table: 30 kN/m, the tool started 1 cm above it (the guarded approach at
+#: the profiles' 5 mm/s).
+STIFF = (("stiffness", 30000.0), ("start_clearance", 0.01))
+STIFF_CASES = [(r, s) for r in PROFILES for s in ("impedance", "adaptive_impedance",
+                                                    "robust_adaptive_impedance",
+                                                    "nn_adaptive_impedance")]
+
+
+@pytest.mark.parametrize("robot,scheme", STIFF_CASES, ids=[f"{r}-{s}" for r, s in STIFF_CASES])
+def test_a_stiff_table_is_held_after_the_guarded_approach(robot, scheme):
+    """30 kN/m (where peers' position arms bounce): after the first touch the tool never
+    leaves the table and the force peaks at most 1.5 x the 10 N target. Measured (8 s):
+    peaks 10.0-12.9 N, force error RMS 0.12-0.71 N, no contact lost (at 15 mm/s: 14-64 ms
+    lost). The outer loop's damping ratio there: the chapter 5 impedance's
+    d_m / (2 sqrt(m_m (k_m + K))) = 150 / (2 sqrt(4 x 30060)) = 0.22; the chapter 3 laws'
+    reference model (3.8), A_m / (2 sqrt(B_m)) = 20 / (2 sqrt(400)) = 0.5."""
+    values, errors = run_case(Case(scheme, robot, duration=6.0, plant=STIFF))
+    print(f"\n{robot} {scheme} 30 kN/m: peak {values['force_peak_N']:.2f} N, lost "
+          f"{values['contact_lost_s']:.3f} s, RMS {values['force_err_rms_N']:.3f} N")
+    assert not errors and values["safe_stop_reason"] == 0.0
+    assert values["contact_lost_s"] == 0.0
+    assert values["force_peak_N"] <= 1.5 * robots.WIPE_FORCE
 
 
 def limits_of(robot: str, controller) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
