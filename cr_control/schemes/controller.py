@@ -18,8 +18,10 @@ the node keeps publishing it, because a real robot's forward_command_controller 
 the last command forever (ros2_controllers #95); a scheme without one stops publishing and
 the plant's watchdog brakes. Commanding turns True again only after RESUME_CYCLES
 consecutive fresh states whose output was finite and inside its limits (hysteretic, so it
-never alternates every few cycles; meanwhile the law integrates nothing and its clock
-stands: :mod:`cr_control.schemes.command_gate`), unless the controller gave up for good
+never alternates every few cycles; meanwhile a braking scheme's law integrates nothing and
+its clock stands: :mod:`cr_control.schemes.command_gate`; a law without a brake runs on,
+because the offline loop still applies its command and a frozen law would act open-loop
+there), unless the controller gave up for good
 (:meth:`Controller.give_up`: a failed start check), which only an activation undoes.
 Commands alternating between the two limits (the chatter of
 fjr_robust_adaptive's measured q_m'') restart the count; cycles held because of the
@@ -446,8 +448,9 @@ class Controller(ABC):
             gap = stamp - self._t_prev
             if 0.0 <= gap <= values["max_stamp_gap"]:
                 self._t_prev = stamp
-                # stopped: the law integrates nothing (command_gate)
-                dt = min(stamp - self._t_step, values["max_dt"]) if self.commanding else 0.0
+                # stopped with a brake in force: the law integrates nothing (command_gate)
+                dt = (min(stamp - self._t_step, values["max_dt"]) if self._stopped_at is None
+                      else 0.0)
                 out, reason = self._compute(stamp, dt, q, v, force)
             else:
                 reason = (f"stamp {'went back' if gap < 0.0 else 'jumped'} by {gap:.6g} s "
@@ -616,7 +619,9 @@ class Controller(ABC):
         """Stop commanding (the gate already has): one line, later ones rate-limited."""
         self.commanding = False
         self.stops += 1
-        self._stopped_at = stamp
+        # a braking scheme's law stands while its brake acts; one without a brake runs on
+        # (its command is still applied offline: frozen, it would act open-loop)
+        self._stopped_at = stamp if self.brakes else None
         gate = self.gate
         self._gate_log("stop", "error", lambda: (
             f"{self.scheme}: {reason}: "
@@ -624,8 +629,9 @@ class Controller(ABC):
                else "commands stopped; the plant's watchdog will brake")
             + f". Commanding resumes after {gate.resume_cycles} cycles in a row with fresh "
             f"states (at most {FRESH_STATE_CYCLES:g} periods apart, {FRESH_MEAN_CYCLES:g} on "
-            "average) and the law's output finite and inside its limits; until then the law "
-            f"integrates nothing and its clock stands (stop {self.stops})"))
+            "average) and the law's output finite and inside its limits"
+            + ("; until then the law integrates nothing and its clock stands" if self.brakes else "")
+            + f" (stop {self.stops})"))
 
     def _resume(self, stamp: float) -> None:
         self.commanding = True
