@@ -56,6 +56,7 @@ def plot(out: Path, names: list[str], table: list[dict[str, Any]], inputs: list[
     written: list[Path] = []
     for metric in plotted_metrics(names, wanted):
         y = np.array([row[metric] for row in table], dtype=float)
+        y[~np.isfinite(y)] = np.nan         # an infinite metric is not drawn (nor breaks the axes)
         fig = Figure(figsize=(6.5, 4.2), layout="constrained")
         ax = fig.subplots()
         bad = int((~ok).sum())
