@@ -213,8 +213,12 @@ def test_session_ok_then_the_plant_errors_after_a_killed_controller(ros_env):
         # (a low rate or fresh share, commands clipped by the rate limit after a lag, held
         # cycles, compute p99 near a period stretched by the load: all seen here on a
         # loaded 2-core machine). The rules themselves are tested above without ROS.
-        for name in (LOOP, CONTROL):
-            assert all(level in (OK, WARN) for level, _ in reports(name)), reports(name)
+        # The controller may also have stopped commanding, braking, where the load made its
+        # answers late on average (cr_control/schemes/command_gate.py): ERROR, by its rule,
+        # and a load's outcome, not this test's verdict.
+        assert all(level in (OK, WARN) for level, _ in reports(LOOP)), reports(LOOP)
+        assert all(level in (OK, WARN) or message.startswith("stopped commanding")
+                   for level, message in reports(CONTROL)), reports(CONTROL)
         for topic, stamps in marker_stamps.items():
             assert len(stamps) > 10, topic
             print(f"{topic}: {len(stamps)} in {stamps[-1] - stamps[0]:.2f} s of stamps: "
