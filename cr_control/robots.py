@@ -280,6 +280,25 @@ NN_FORCE_RAMP_TIME = 2.0
 #: (max_contact_force, as libfranka's); a larger one is scaled down to it
 #: (cr_control.schemes.impedance.base). At 50 N a 1e6 N target tripped that reflex at 3.1 s.
 MAX_TARGET_FORCE = 3.0 * WIPE_FORCE
+#: The largest transport delay (cycles of the profile's period) each scheme tolerates on the
+#: torque-interface profiles: wiping offline for 8 s with the plant node's command limits (a
+#: lockstep session's), force error RMS <= 0.3 N, radial <= 2 mm, no joint above half its
+#: velocity limit, no command at its effort limit for more than 10 cycles, no reflex, no
+#: give-up (docs/safety.md, 'Gains a sampled, delayed loop takes'). The controller warns at
+#: start when the round trip it measures goes beyond it (tolerated_delay_cycles). Beyond it the
+#: Panda's joint 7 oscillates (the wrist's gains: the rule's edge is 7 cycles) or, with the
+#: wrist sensor, the chapter 3 laws' force is lost; the UR5's start check gives up on its
+#: position loop (the tip 0.15-0.16 m/s off its reference, joint 4 at 0.3 of its limit).
+DELAY_MARGIN_CYCLES = {
+    "panda": {"adaptive_impedance": 8, "robust_adaptive_impedance": 7,
+              "nn_adaptive_impedance": 8, "impedance": 8, "fuzzy_unidirectional": 8},
+    "panda_ft": {"adaptive_impedance": 8, "robust_adaptive_impedance": 5,
+                 "nn_adaptive_impedance": 5, "impedance": 9, "fuzzy_unidirectional": 9},
+    "ur5": {"adaptive_impedance": 3, "robust_adaptive_impedance": 4,
+            "nn_adaptive_impedance": 5, "impedance": 5, "fuzzy_unidirectional": 5},
+    "ur5_ft": {"adaptive_impedance": 3, "robust_adaptive_impedance": 6,
+               "nn_adaptive_impedance": 6, "impedance": 4, "fuzzy_unidirectional": 5},
+}
 #: The task-space schemes (chapters 3 and 5) that run on a robot.
 TASK_SPACE_SCHEMES = ("adaptive_impedance", "robust_adaptive_impedance", "nn_adaptive_impedance",
                       "impedance", "fuzzy_unidirectional")
@@ -377,6 +396,7 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
               "reference_frequency": WIPE_FREQUENCY, "posture": list(r.home),
               "force_ramp_time": FORCE_RAMP_TIME, "max_target_force": MAX_TARGET_FORCE,
               "control_period": 1.0 / r.rate_hz, "command_delay_cycles": r.command_delay_cycles,
+              "tolerated_delay_cycles": DELAY_MARGIN_CYCLES.get(r.name, {}).get(scheme, 0),
               **controller_wrench(r), **APPROACH, "approach_speed": r.approach_speed}
     if scheme in ("impedance", "fuzzy_unidirectional"):
         values.update(f_dm=WIPE_FORCE, surface="plane", surface_normal=[0.0, 0.0, 1.0],

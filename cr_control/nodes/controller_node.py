@@ -105,6 +105,7 @@ from cr_control.supervision.controller_inputs import (
     ControllerInputs,
     Readers,
 )
+from cr_control.supervision.delay_watch import delay_watch_for
 from cr_control.supervision.single_source import SingleSource, expected_names
 
 __all__ = ["SOURCE_SILENCE_S", "ControllerNode", "main", "wait_for_acks"]
@@ -183,6 +184,8 @@ class ControllerNode(LifecycleNode):
         # Lockstep: every 250 cycles, wait until the readers (a recorder) acknowledged.
         self._pacer = (ReaderPacer(self, [self.command_pub, self.forward_pub, self.reference_pub,
                                           self.status_pub]) if values["lockstep"] else None)
+        # Real time: the answers' round trip, checked once against the delay the gains take.
+        self._delay_watch = delay_watch_for(self.controller, bool(values["lockstep"]))
         # Outgoing messages, built once as CDR bytes and refilled in place every cycle.
         self.out = CommandOut(self, self.command_pub, self.joint_names,
                               self.controller.command_interface, self._relieved)
@@ -381,6 +384,10 @@ class ControllerNode(LifecycleNode):
                 self._forward_out[:] = out.command
                 self.forward_pub.publish(self._forward.message())
         # after the command: the plant waits for it, diagnostics and markers do not
+        if self._delay_watch is not None and not self._delay_watch.done:
+            late = self._delay_watch.answered(t, time.time())
+            if late is not None:
+                self.get_logger().warn(f"{self.scheme}: {late}")
         self.diagnostics.cycle(t, out_start - compute_start)
         self.markers.cycle(t, out.reference)
         self._cycle += 1

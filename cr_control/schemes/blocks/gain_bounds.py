@@ -78,6 +78,12 @@ PARAMETERS = [
           "gain margin of 2; the controller warns at start when the round trip it measures "
           "is longer than the delay its gains tolerate.", "integer", read_only=True,
           bound=1000),
+    Param("tolerated_delay_cycles", 0, "The largest delay (periods: the driver's and the "
+          "answers' lateness together) these gains tolerate: the controller warns once at start "
+          "when the round trip it measures in real time goes beyond it. The robot profiles set "
+          "the measured margin of their scheme (docs/safety.md, 'Gains a sampled, delayed loop "
+          "takes'); 0 = the discrete-time rule's figure for the joint-space gains in force.",
+          "integer", read_only=True, bound=1000),
 ]
 #: The thesis arm's: its simulations apply each answer over the period that starts with
 #: the state it answers.
@@ -373,3 +379,28 @@ def null_space_parameters(specs: list[Param], loops_: dict[str, Loop]) -> list[P
         value = damping.tolist() if isinstance(D.default, (list, tuple)) else float(damping[0])
         out[damping_name] = replace(D, default=value)
     return [out[p.name] for p in specs]
+
+
+#: The rule's tolerated delay is searched up to this many cycles.
+MAX_TOLERATED_CYCLES = 100
+
+
+def tolerated_delay(values: dict, loops_: dict[str, Loop]) -> int:
+    """The discrete-time rule's largest delay (cycles) at which every joint-space gain in
+    ``values`` is still stable (no margin: the edge), on the inertias of ``loops_``."""
+    pairs = []
+    for stiffness_name, damping_name, family in (
+            ("orientation_stiffness", "orientation_damping", "orientation"),
+            ("posture_stiffness", "posture_damping", "posture")):
+        loop = loops_[family]
+        if math.isfinite(loop.inertia) and stiffness_name in values:
+            K = np.atleast_1d(np.asarray(values[stiffness_name], dtype=float))
+            D = np.atleast_1d(np.asarray(values[damping_name], dtype=float))
+            pairs += [loop.normalised(float(k), float(d)) for k, d in zip(K, D, strict=True)]
+    joint = loops_["joint"]
+    if math.isfinite(joint.inertia) and "joint_limit_damping" in values:
+        pairs.append(joint.normalised(0.0, float(values["joint_limit_damping"])))
+    d = 0
+    while d < MAX_TOLERATED_CYCLES and all(dg.stable(k, c, d + 1) for k, c in pairs):
+        d += 1
+    return d

@@ -291,6 +291,9 @@ class TaskSpaceController(Controller):
         self._check_sizes(values)
         self.check_values(values)
         self.check_gains(values)
+        #: The largest delay (cycles) these gains tolerate (the node's start-up round-trip
+        #: check: cr_control.supervision.delay_watch); None on the thesis's arm.
+        self.tolerated_delay = self.tolerated_delay_of(values)
         self.reference_fields, base_status = status_fields(self.model)
         self._law_fields = self.law_status_fields()
         self._status = base_status + self._law_fields
@@ -402,6 +405,16 @@ class TaskSpaceController(Controller):
         if self.is_thesis_robot(robot):
             return
         gain_bounds.check_pairs(values, self.gain_loops(self.model, values, False), changed)
+
+    def tolerated_delay_of(self, values: dict) -> int | None:
+        """``tolerated_delay_cycles``, or where it is 0 the discrete-time rule's figure for the
+        joint-space gains in ``values`` (:func:`gain_bounds.tolerated_delay`); None on the
+        thesis's arm."""
+        if self.is_thesis_robot(self.robot_values(values)):
+            return None
+        given = int(values.get("tolerated_delay_cycles", 0))
+        return given or gain_bounds.tolerated_delay(values,
+                                                    self.gain_loops(self.model, values, False))
 
     def check_parameter(self, name: str, value: Any) -> str | None:
         try:
