@@ -12,7 +12,9 @@ xfail with the measured figure); a 30 kN/m table held after the guarded approach
 the target, no contact lost); the command stream inside the joints' velocity, acceleration
 and (Panda) jerk limits; a law that gives up brakes through a command that decelerates to
 rest at the acceleration limit; a robot that does not move (its own stop) keeps the command
-within max_lead of it, and nothing drifts.
+within max_lead of it; over a minute of wiping nothing drifts (the circle's centre within
+1 mm); a live 10x step of a stiffness or damping moves the next commands by at most 1 mm at
+the tip and the force by at most 20 % of the target.
 
 Measured (offline, 6 s, default table, with the plant node's limits; force error RMS N /
 radial RMS mm):
@@ -32,8 +34,6 @@ the tool tilts by up to 0.19 rad while it wipes. Not yet solved.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import pytest
@@ -178,11 +178,73 @@ def test_a_robot_that_does_not_follow_keeps_the_command_within_max_lead():
     assert np.isfinite(leads).all()
 
 
-def test_nothing_drifts_while_the_robot_lags():
-    """Wiping 8 s on the UR5 behind its servos: the centre of the real circle stays on the
-    reference's (drift-free anchoring to the measured joints)."""
-    values, _ = run_case(Case("impedance", "ur5_position", duration=8.0))
-    assert values["centre_err_m"] <= 1e-3 and math.isfinite(values["path_err_rms_m"])
+@pytest.mark.parametrize("robot,scheme", [("ur5_position", "impedance"),
+                                          ("panda_position", "nn_adaptive_impedance"),
+                                          ("xarm7", "impedance"),
+                                          ("ur5_velocity", "robust_adaptive_impedance")])
+def test_nothing_drifts_over_a_minute_of_wiping(robot, scheme):
+    """60 s of wiping: the real circle's centre, fitted over 5 s windows, stays within 1 mm of
+    where it was at 5-10 s (anchoring to the measured joints every cycle: nothing is integrated
+    from joint increments). Measured: at most 0.078 mm; the tool's height within 1 um."""
+    from cr_control.experiments.wiping import circle_fit
+
+    run = offline.run_scheme(scheme, 60.0, robot=robot)
+    controller, _ = offline.build_scheme(scheme, robot=robot)
+    tip = controller.tip_positions(run.position[::5, :len(controller.state_joint_names)])
+    t = run.time[::5]
+    centres = np.array([circle_fit(tip[(t >= a) & (t < a + 5.0), :2])[0]
+                        for a in (5.0, 15.0, 25.0, 35.0, 45.0, 55.0)])
+    drift = np.linalg.norm(centres - centres[0], axis=1)
+    print(f"\n{robot} {scheme}: centre drift {np.round(drift * 1e3, 3)} mm")
+    assert drift.max() <= 1e-3 and run.safe_stop_reason == 0
+
+
+#: The live gain steps (x10 at t = 4 s) and the laws they belong to.
+GAIN_STEPS = [("impedance", name) for name in ("k_m", "d_m", "tangential_stiffness",
+                                               "tangential_damping", "orientation_stiffness",
+                                               "posture_stiffness")] + [
+    ("adaptive_impedance", "force_admittance_damping"), ("fuzzy_unidirectional", "d_med")]
+
+
+@pytest.fixture(scope="module")
+def unchanged():
+    """The runs without a gain step (5 s, ur5_position), per scheme."""
+    return {scheme: offline.run_scheme(scheme, 5.0, robot="ur5_position")
+            for scheme in {scheme for scheme, _ in GAIN_STEPS}}
+
+
+@pytest.mark.parametrize("scheme,name", GAIN_STEPS, ids=[f"{s}-{n}" for s, n in GAIN_STEPS])
+def test_a_tenfold_gain_step_moves_the_command_little(unchanged, scheme, name):
+    """A parameter set 10x its value while wiping (as ros2 param set does; the node asks
+    check_parameter first): the next commands' tip within 1 mm of the unchanged run's, the
+    true force within 20 % of the 10 N target of it. Measured on ur5_position: at most 0.072
+    mm (tangential_stiffness) and 1.40 N (k_m: the impedance's own new equilibrium)."""
+    robot = "ur5_position"
+    period = offline.robot_period(robot)
+    at = int(round(4.0 / period))
+    controller, _ = offline.build_scheme(scheme, robot=robot)
+    value = controller.values[name]
+    tenfold = (np.asarray(value, dtype=float) * 10.0).tolist() if np.ndim(value) else value * 10.0
+    refused: list[str] = []
+
+    def step_gain(k, t, c, plant):
+        if k == at:
+            why = c.check_parameter(name, tenfold)
+            if why:
+                refused.append(why)
+            else:
+                c.set_parameter(name, tenfold)
+
+    run = offline.run_scheme(scheme, 5.0, robot=robot, hook=step_gain)
+    base = unchanged[scheme]
+    n = len(controller.state_joint_names)
+    tips = [controller.tip_positions(r.command[at - 1:at + 3, :n]) for r in (run, base)]
+    jump = float(np.linalg.norm(tips[0] - tips[1], axis=1).max())
+    force = float(np.abs(run.true_force[at:, 2] - base.true_force[at:, 2]).max())
+    print(f"\n{scheme} {name} x10{' (refused)' if refused else ''}: command tip {jump * 1e3:.4f} "
+          f"mm, force {force:.2f} N")
+    assert not refused and run.safe_stop_reason == 0
+    assert jump <= 1e-3 and force <= 0.2 * robots.WIPE_FORCE
 
 
 @pytest.mark.ros
