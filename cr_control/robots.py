@@ -38,7 +38,11 @@ from typing import Any
 
 import numpy as np
 
+from cr_control.models.brake import MAX_BRAKE_STEP
 from cr_control.models.urdf import load_chain
+
+#: The plant node's default brake frequency (rad/s), brake_frequency.
+BRAKE_FREQUENCY = 50.0
 
 
 @dataclass(frozen=True)
@@ -346,8 +350,13 @@ def controller_wrench(r: Robot) -> dict[str, Any]:
 
 def plant_node_values(r: Robot) -> dict[str, Any]:
     """The plant node's settings that imitate the profile's driver: its rate and transport
-    delay (:data:`Robot.command_delay_cycles`)."""
-    return {"rate_hz": r.rate_hz, "command_delay_cycles": r.command_delay_cycles}
+    delay (:data:`Robot.command_delay_cycles`); at a rate below 200 Hz (the xArm's 150) the
+    node's brake frequency lowered to what a held brake torque takes (MAX_BRAKE_STEP x
+    rate_hz: the node refuses more, though a servo plant brakes with its own reference)."""
+    values = {"rate_hz": r.rate_hz, "command_delay_cycles": r.command_delay_cycles}
+    if r.rate_hz * MAX_BRAKE_STEP < BRAKE_FREQUENCY:
+        values["brake_frequency"] = MAX_BRAKE_STEP * r.rate_hz
+    return values
 
 
 def plant_values(r: Robot) -> dict[str, Any]:
