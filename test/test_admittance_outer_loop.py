@@ -35,6 +35,8 @@ the tool tilts by up to 0.19 rad while it wipes. Not yet solved.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from robot_data import needs_erd
@@ -277,3 +279,42 @@ def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
     sent = s.joint_commands.velocity if robot.endswith("velocity") else s.joint_commands.position
     assert np.abs(sent - run.command[cmd_rows]).max() < 1e-9
     assert s.contact_wrench.force[s.contact_wrench.time >= 0.5, 2].min() > 0.0
+
+
+@pytest.mark.parametrize("hostile", ["law_1e300", "law_nan", "far_target", "absurd_gain"])
+def test_hostile_inputs_never_make_the_command_jump(hostile):
+    """A law that answers 1e300 or NaN for 0.2 s, a target pose 10 m away, a stiffness 1e4x
+    (refused, or taken): the commanded positions never move by more than one cycle of the
+    joint's velocity limit, stay finite, and no reflex is needed."""
+    robot = "ur5_position"
+    period = offline.robot_period(robot)
+    controller, _ = offline.build_scheme("impedance", robot=robot)
+    v_lim = controller.chain_model.limits.velocity
+
+    def hook(k, t, c, plant):
+        if hostile == "far_target" and k == 1500:
+            c.set_target_pose(np.array([10.0, 0.0, 10.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+        if hostile == "absurd_gain" and k == 1500 and c.check_parameter("k_m", 6e5) is None:
+            c.set_parameter("k_m", 6e5)
+        if hostile.startswith("law_") and k == 1500:
+            law = c.law
+            compute = law.compute
+            bad = 1e300 if hostile == "law_1e300" else math.nan
+
+            calls = []
+
+            def broken(t_, dt, q, v, f):
+                out = compute(t_, dt, q, v, f)
+                calls.append(t_)
+                if len(calls) <= 100:
+                    out.command[:] = bad
+                return out
+            law.compute = broken
+
+    run = offline.run_scheme("impedance", 4.0, robot=robot, hook=hook)
+    step = np.abs(np.diff(run.command, axis=0))
+    assert np.isfinite(run.command).all()
+    assert np.all(step <= v_lim * period * (1 + 1e-9))
+    assert run.safe_stop_reason == 0
+    if hostile == "law_1e300":            # the virtual arm flung: the limits held the stream
+        assert run.column("command_clipped").max() > 0
