@@ -388,7 +388,8 @@ def outer_loop_values(r: Robot, scheme: str) -> dict[str, Any]:
     that keep the admittance well below the servos' bandwidth (SERVO_GAINS); none on effort."""
     if r.command_interface == "effort":
         return {}
-    gains = SERVO_GAINS["ch5"] if scheme in ("impedance", "fuzzy_unidirectional") else         SERVO_GAINS["ch3"]
+    gains = (SERVO_GAINS["ch5"] if scheme in ("impedance", "fuzzy_unidirectional")
+             else SERVO_GAINS["ch3"])
     return {"command_interface": r.command_interface,
             "command_acceleration_limit": list(r.acceleration_limit),
             "command_jerk_limit": list(r.jerk_limit), **gains, **SERVO_GAINS.get(scheme, {})}
