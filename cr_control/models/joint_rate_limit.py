@@ -82,8 +82,8 @@ def rate_limit(state, limits, command, velocity_command, period, out):
     """One period of the limiter (module docstring): the limited position (or, with
     ``velocity_command``, velocity) of every joint into ``out``; ``state`` [p, v, a] is
     advanced. Returns the number of joints whose command was changed by more than 1e-9
-    (rad or rad/s). A non-finite command leaves the state and ``out`` as the last period's continuation (the joint keeps
-    its velocity, within the limits) and counts as changed."""
+    (rad or rad/s). A non-finite command leaves the state and ``out`` as the last period's
+    continuation (the joint keeps its velocity, within the limits) and counts as changed."""
     n = command.shape[0]
     T = period
     changed = 0
