@@ -49,7 +49,7 @@ os.environ.setdefault(SETTLE_VARIABLE, "0")
 RAY_MODULES = ("test_readme.py", "test_results_tables.py", "test_sweep.py", "test_sweep_cluster.py")
 #: Modules of a minute or more, handed out first (longest first).
 LONG_MODULES = ("test_readme.py", "test_colcon.py", "test_sigint.py", "test_robots.py",
-                "test_hostile_targets.py")
+                "test_hostile_targets.py", "test_gain_matrix.py")
 
 
 def pytest_configure(config):
@@ -67,6 +67,7 @@ STUDIES = {
     "test_robots.py::test_wiping_holds_the_force_on_the_path": 2,
     "test_robots.py::test_wiping_a_stiff_table": 1,
     "test_robots.py::test_wiping_at_three_times_the_drivers_delay": 2,
+    "test_gain_matrix.py::test_a_gain_at_its_accepted_extreme_holds_the_task": 6,
     "test_hostile_targets.py::test_no_target_wrench_sequence_winds_a_law_up": 2,
     "test_hostile_targets.py::test_zero_ft_every_0_2_s_while_pressing_10_n_leaves_the_true_force_alone": 1,
     "test_hostile_targets.py::test_a_target_pose_out_of_reach_never_needs_a_reflex": 2,

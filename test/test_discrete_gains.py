@@ -155,3 +155,26 @@ def test_inertias_are_the_lightest_over_the_workspace():
     assert found.posture[1] < found.posture[0]                     # lighter elsewhere
     assert all(least <= home for home, least in (found.orientation, found.posture, found.joint,
                                                  found.task))
+
+
+def test_the_laws_gains_by_the_same_rule():
+    """A law's gain beyond what its loop takes is refused in one line naming the loop; the
+    same value on the thesis's arm is not (its plain bounds)."""
+    r = robots.robot("panda")
+    ctl = make_controller("robust_adaptive_impedance",
+                          robots.controller_values(r, "robust_adaptive_impedance"))
+    spec = {p.name: p for p in controller_class("robust_adaptive_impedance").parameters(
+        robots.controller_values(r, "robust_adaptive_impedance"))}
+    assert spec["K_s"].bound == pytest.approx(190.0, rel=0.02)        # 0.22 x 0.86 kg / 1 ms
+    assert spec["Q_c_star"].bound == pytest.approx(27.0, rel=0.05)
+    ok, why, _ = validate(spec["K_s"], [1e4] * 3)
+    assert not ok and "<= 190" in why
+    why = ctl.check_parameter("Q_c_star", np.diag([26.0] * 3))
+    assert why is None
+    why = ctl.check_parameter("P2", np.diag([100.0] * 3))          # Q_c* P2 beside P2 = 100
+    assert why is None
+    impedance = make_controller("impedance", robots.controller_values(r, "impedance"))
+    why = impedance.check_parameter("m_m", 0.3)
+    assert why is not None and "m_m 0.3" in why and "\n" not in why
+    thesis = make_controller("robust_adaptive_impedance", {})
+    assert thesis.check_parameter("K_s", np.diag([1e4, 1e4])) is None

@@ -46,7 +46,7 @@ from functools import lru_cache
 import numpy as np
 import pinocchio as pin
 
-from cr_control.core.parameters import Param, ParameterError
+from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, Param, ParameterError
 from cr_control.models import discrete_gains as dg
 
 #: The bounds hold at this many times the delay the robot declares (module docstring).
@@ -404,3 +404,193 @@ def tolerated_delay(values: dict, loops_: dict[str, Loop]) -> int:
     while d < MAX_TOLERATED_CYCLES and all(dg.stable(k, c, d + 1) for k, c in pairs):
         d += 1
     return d
+
+
+# -- the laws' own gains --------------------------------------------------------------------------
+def _norm(value) -> float:
+    """The size of a gain: a scalar's magnitude, a vector's largest element, a matrix's
+    largest singular value (its largest gain in any direction)."""
+    x = np.asarray(value, dtype=float)
+    if x.ndim == 2:
+        return float(np.linalg.norm(x, 2))
+    return float(np.max(np.abs(x))) if x.size else 0.0
+
+
+@dataclass(frozen=True)
+class LawRule:
+    """One loop a law's gains close, in the rule's normalised gains: ``gains(values, T, M)``
+    gives (k, c) or None where the law has no such loop; ``names`` are the parameters it
+    reads; ``through``: ``plant`` (the torque acts through the arm: DELAY_FACTOR x the
+    declared delay, the task's lightest inertia M) or ``internal`` (an integrator inside the
+    law, stepped once a period: no delay, M unused); ``what`` says which loop."""
+
+    what: str
+    names: tuple[str, ...]
+    through: str
+    gains: object
+
+
+def _ch5(stiffness: str, damping: str):
+    def gains(v, T, M):
+        m = float(v["m_m"])
+        return _norm(v[stiffness]) * T * T / m, _norm(v[damping]) * T / m
+    return gains
+
+
+def _fuzzy(damping: str):
+    def gains(v, T, M):
+        m, d = float(v["m_m"]), float(v[damping])
+        return float(v["lambda"]) * d * T * T / m, d * T / m
+    return gains
+
+
+def _adaptation(v, T, M):
+    """The estimates' linear part (3.11-3.14): c_hat = c_hat(0) - Q_c int(varpi) - Q_c*
+    varpi, varpi = P1 xi + P2 xi', acts as a damping Q_c* P2 and a stiffness Q_c* P1 +
+    Q_c P2 beside the impedance A_hat(0), B_hat(0) it starts from (accelerations: the law's
+    model of the arm cancels M)."""
+    p1, p2 = _norm(v["P1"]), _norm(v["P2"])
+    damping = _norm(v["A_hat_0"]) + _norm(v["Q_c_star"]) * p2
+    stiffness = _norm(v["B_hat_0"]) + _norm(v["Q_c_star"]) * p1 + _norm(v["Q_c"]) * p2
+    return stiffness * T * T, damping * T
+
+
+LAW_RULES = (
+    LawRule("the normal impedance (5.6): k_m, d_m through m_m", ("k_m", "d_m", "m_m"), "plant",
+            _ch5("k_m", "d_m")),
+    LawRule("the tangential impedance through m_m",
+            ("tangential_stiffness", "tangential_damping", "m_m"), "plant",
+            _ch5("tangential_stiffness", "tangential_damping")),
+    *(LawRule(f"the fuzzy impedance's {name} (k = lambda d) through m_m",
+              (name, "lambda", "m_m"), "plant", _fuzzy(name)) for name in ("d_s", "d_med", "d_b")),
+    LawRule("the estimates' linear part (3.11-3.14)",
+            ("A_hat_0", "B_hat_0", "P1", "P2", "Q_c", "Q_c_star"), "plant", _adaptation),
+    LawRule("the reference model (3.8), stepped each period", ("A_m", "B_m"), "internal",
+            lambda v, T, M: (_norm(v["B_m"]) * T * T, _norm(v["A_m"]) * T)),
+    LawRule("the sliding gain K_s s (3.48) through the task's lightest inertia", ("K_s",),
+            "plant", lambda v, T, M: (0.0, _norm(v["K_s"]) * T / M)),
+    LawRule("the compensator z' = D z + ... (3.40), stepped each period", ("D",), "internal",
+            lambda v, T, M: (0.0, _norm(v["D"]) * T)),
+    LawRule("the force admittance m_a delta'' + d_a delta' = f_d - f through the arm",
+            ("force_admittance_mass", "force_admittance_damping"), "plant",
+            lambda v, T, M: (0.0, float(v["force_admittance_damping"]) * T
+                             / float(v["force_admittance_mass"]))),
+)
+#: A least size below this fraction of the given one is the roots' round-off at z = 1 (the
+#: loop of a vanishing gain), not a bound.
+LEAST_FRACTION = 1e-3
+#: The parameters a law rule reads.
+LAW_GAINS = frozenset(name for rule in LAW_RULES for name in rule.names)
+
+
+def law_refusal(values: dict, period: float, delay_cycles: int, task_inertia: float,
+                reading: str | None = None) -> str | None:
+    """Why the laws' gains in ``values`` leave one of their loops (:data:`LAW_RULES`) unstable
+    with the margin, in one line, or None; ``reading``: only the loops that read that gain."""
+    for rule in LAW_RULES:
+        if not all(name in values for name in rule.names) or (
+                reading is not None and reading not in rule.names):
+            continue
+        k, c = rule.gains(values, period, task_inertia)
+        delay = DELAY_FACTOR * int(delay_cycles) if rule.through == "plant" else 0
+        if not dg.stable_with_margin(k, c, delay, GAIN_MARGIN):
+            shown = ", ".join(f"{name} {_shown(values[name])}" for name in rule.names)
+            return (f"{shown}: {rule.what} is not stable with gain margin {GAIN_MARGIN:g} at "
+                    f"{delay} cycles of delay (period {period * 1e3:g} ms; normalised stiffness "
+                    f"{k:.3g}, damping {c:.3g})")
+    return None
+
+
+def _shown(value) -> str:
+    x = np.asarray(value, dtype=float)
+    return f"{_norm(x):g}" if x.size > 1 else f"{float(x):g}"
+
+
+def _scaled(param: Param, x: float):
+    """``param``'s value of size x (a vector: every element; a matrix: x I, -x I if negative
+    definite; a scalar: x)."""
+    sign = -1.0 if param.kind == "nd" else 1.0
+    if param.kind in MATRIX_KINDS:
+        return sign * x * np.eye(param.size)
+    if param.kind in VECTOR_KINDS:
+        return np.full(param.size or 1, x)
+    return x
+
+
+_RANGES: dict[tuple, tuple[float, float]] = {}
+
+
+def law_range(param: Param, values: dict, period: float, delay_cycles: int,
+              task_inertia: float) -> tuple[float, float]:
+    """(least, most) size of ``param`` the law rules accept with the other ``values``
+    (bisection in the size; 0 and its plain bound where nothing limits it). Cached: the
+    same robot and gains give the same range every start."""
+    key = (param.name, param.kind, param.size, param.bound, float(period), int(delay_cycles),
+           float(task_inertia), tuple(sorted((k, np.asarray(v, dtype=float).tobytes())
+                                             for k, v in values.items())))
+    if key not in _RANGES:
+        _RANGES[key] = _law_range(param, values, period, delay_cycles, task_inertia)
+    return _RANGES[key]
+
+
+def _law_range(param: Param, values: dict, period: float, delay_cycles: int,
+               task_inertia: float) -> tuple[float, float]:
+    def ok(x: float) -> bool:
+        return law_refusal({**values, param.name: _scaled(param, x)}, period, delay_cycles,
+                           task_inertia, param.name) is None
+    top = float(param.bound)
+    base = _norm(values[param.name])
+    high = top
+    if not ok(top):
+        low = base if base > 0.0 and ok(base) else 0.0
+        if low == 0.0:
+            low = next((x for x in np.geomspace(top, top * 1e-12, 60) if ok(x)), 0.0)
+        hi = top
+        for _ in range(60):
+            mid = math.sqrt(low * hi) if low > 0.0 else 0.5 * hi
+            if ok(mid):
+                low = mid
+            else:
+                hi = mid
+        high = low
+    least = 0.0
+    if not ok(1e-12 * max(base, 1.0)):
+        lo, hi = 0.0, base if ok(base) else high
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if ok(mid):
+                hi = mid
+            else:
+                lo = mid
+        least = hi if hi > LEAST_FRACTION * base else 0.0    # below: round-off at z = 1
+    return least, high
+
+
+def law_parameters(specs: list[Param], values: dict, period: float, delay_cycles: int,
+                   task_inertia: float) -> list[Param]:
+    """``specs`` with the bounds the law rules give each gain beside the others' ``values``
+    (the descriptor states it; a least size, for a mass, in words: it is refused below), the
+    default lowered to the bound if above."""
+    out = []
+    for p in specs:
+        if p.name not in LAW_GAINS or p.read_only or p.name not in values:
+            out.append(p)
+            continue
+        least, most = law_range(p, values, period, delay_cycles, task_inertia)
+        if not most > 0.0:              # no size of it alone helps: the others decide
+            out.append(p)
+            continue
+        bound = float(_round_down(most)) if most < p.bound else p.bound
+        text = (f"{p.description} Bounded by the discrete-time rule beside the other gains' "
+                f"defaults (period {period * 1e3:g} ms, stable at "
+                f"{DELAY_FACTOR * int(delay_cycles)} cycles of delay with gain margin "
+                f"{GAIN_MARGIN:g}; judged with the gains in force on a change)")
+        if least > 0.0:
+            text += f"; at least {least:.3g} with them"
+        default = p.default
+        if _norm(values[p.name]) > bound:         # the default lowered to the bound
+            sign = -1.0 if p.kind == "nd" else 1.0
+            default = ([sign * bound] * p.size if p.kind in MATRIX_KINDS else
+                       [bound] * (p.size or 1) if p.kind in VECTOR_KINDS else bound)
+        out.append(replace(p, bound=bound, default=default, description=text + "."))
+    return out

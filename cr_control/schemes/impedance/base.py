@@ -54,7 +54,7 @@ import numpy as np
 import pinocchio as pin
 
 from cr_control.core.packing import Layout
-from cr_control.core.parameters import Param, ParameterError, resolve
+from cr_control.core.parameters import Param, ParameterError, resolve, validate
 from cr_control.models.reach import chain_reach, first_axis, off_the_axis
 from cr_control.models.urdf import JOINT_FRICTION_EPSILON
 from cr_control.schemes.blocks import (
@@ -204,11 +204,27 @@ class TaskSpaceController(Controller):
         own = {"joint_names": JOINT_NAMES, "max_effort": max_effort_on(
             next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model)}
         common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
-        return (common + cls.robot_parameters() + safe_stop.parameters(thesis) + wrist_sensor.PARAMETERS
-                + cls.reference_parameters(model.m, thesis)
-                + cls.null_space_parameters(model, thesis, given or {})
-                + gain_bounds.parameters(thesis)
-                + cls.law_parameters(model, thesis) + admittance_outer_loop.parameters(given))
+        # the gains' bounds at the law's own period and delay (the virtual arm's behind a
+        # position or velocity interface)
+        law = admittance_outer_loop.law_settings(given or {})
+        specs = (common + cls.robot_parameters() + safe_stop.parameters(thesis)
+                 + wrist_sensor.PARAMETERS + cls.reference_parameters(model.m, thesis)
+                 + cls.null_space_parameters(model, thesis, law)
+                 + gain_bounds.parameters(thesis) + cls.law_parameters(model, thesis)
+                 + admittance_outer_loop.parameters(given))
+        return specs if thesis else cls.bounded_law_gains(specs, law)
+
+    @classmethod
+    def bounded_law_gains(cls, specs: list[Param], given: dict[str, Any]) -> list[Param]:
+        """``specs`` with the law's gains (and the force admittance's) bounded on a robot by
+        the discrete-time rule beside the others (:func:`gain_bounds.law_parameters`: the
+        loops each law closes); the thesis's arm keeps the thesis's gains and plain bounds."""
+        values = {p.name: validate(p, given.get(p.name, p.default))[2] for p in specs
+                  if p.name in gain_bounds.LAW_GAINS}
+        values = {k: v for k, v in values.items() if v is not None}
+        period, delay = gain_bounds.loop_settings(given, False)
+        task = cls.gain_loops(cls.carried_model(given), given, False)["task"].inertia
+        return gain_bounds.law_parameters(specs, values, period, delay, task)
 
     @classmethod
     def null_space_parameters(cls, model: TaskModel, thesis: bool,
@@ -404,7 +420,12 @@ class TaskSpaceController(Controller):
         robot = self.robot_values(values)
         if self.is_thesis_robot(robot):
             return
-        gain_bounds.check_pairs(values, self.gain_loops(self.model, values, False), changed)
+        loops = self.gain_loops(self.model, values, False)
+        gain_bounds.check_pairs(values, loops, changed)
+        period, delay = gain_bounds.loop_settings(values, False)
+        why = gain_bounds.law_refusal(values, period, delay, loops["task"].inertia)
+        if why is not None:
+            raise ParameterError(why)
 
     def tolerated_delay_of(self, values: dict) -> int | None:
         """``tolerated_delay_cycles``, or where it is 0 the discrete-time rule's figure for the

@@ -1,0 +1,162 @@
+"""Every gain a parameter accepts is a gain the arm survives: each rule-bounded gain of the five
+task-space schemes, set live to its accepted extreme (the largest value its bound and the
+discrete-time rule accept beside the gains in force, and for a damping or a mass the least),
+one at a time and in the careless user's pairs, on the Panda and the UR5 wiping at the profile's
+delay, with the plant node's command limits (a lockstep session's): no reflex, every joint
+below its velocity limit, the true contact force at most 1.5 x the 10 N target. The change is
+made as the node makes it (check_parameter, then set_parameter) 1.5 s into the run, judged over
+the 2 s after.
+
+Before the rule (the plain bounds, 1e4 for every gain): orientation_stiffness 1e4, damping
+1e4, posture gains 1e4, Q_c 1e4, Q_c_star 1e4, P2 1e4, K_s 1e4, D -1e4, m_m 1e-9, d_m 1e4,
+k_m 1e4, tangential_damping 1e4, force_admittance_damping 1e4, Gamma_M and Gamma_G 1e4 all
+ended in the joint-velocity reflex (measured 1.00-1.14x the limit) or above 15 N.
+
+What still fails at its accepted extreme is marked xfail with its figures: those loops close
+through the contact (its stiffness is the environment's, not the controller's to know) or
+through the NN's learning, which the rule does not model.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cr_control import offline, robots
+from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, validate
+from cr_control.schemes.registry import controller_class
+
+T_SET = 1.5
+DURATION = 3.5
+FORCE_MAX = 1.5 * robots.WIPE_FORCE
+
+NULL = ["orientation_stiffness", "orientation_damping", "posture_stiffness", "posture_damping",
+        "joint_limit_stiffness", "joint_limit_damping"]
+CH3 = ["A_m", "B_m", "P1", "P2", "Q_a", "Q_b", "Q_c", "Q_a_star", "Q_b_star", "Q_c_star",
+       "force_admittance_mass", "force_admittance_damping"]
+GAINS = {
+    "adaptive_impedance": NULL + CH3,
+    "robust_adaptive_impedance": NULL + CH3 + ["K_s", "D"],
+    "nn_adaptive_impedance": NULL + CH3 + ["K_s", "D", "Gamma_M", "Gamma_C", "Gamma_G"],
+    "impedance": NULL + ["m_m", "d_m", "k_m", "tangential_stiffness", "tangential_damping"],
+    "fuzzy_unidirectional": NULL + ["m_m", "lambda", "d_s", "d_med", "d_b",
+                                    "tangential_stiffness", "tangential_damping"],
+}
+#: Also their least accepted value (a damping or a mass: less is where a loop gives way).
+LEAST = {"orientation_damping", "posture_damping", "d_m", "tangential_damping", "A_m", "m_m",
+         "force_admittance_mass"}
+#: The careless user's pairs (the issue's table), each set in turn to its accepted extreme.
+PAIRS = {
+    "stiff_wrist_undamped": [("orientation_damping", "least"), ("orientation_stiffness", "most")],
+    "stiff_damped_posture": [("posture_stiffness", "most"), ("posture_damping", "most")],
+    "every_adaptation_gain": [(name, "most") for name in ("Q_a", "Q_b", "Q_c", "Q_a_star",
+                                                           "Q_b_star", "Q_c_star")],
+}
+#: Still failing at the accepted extreme (measured at the profile's delay).
+OPEN = {
+    ("panda", "nn_adaptive_impedance", "Gamma_M", "most"): "1e4: 1.12x the velocity limit, 38 N",
+    ("ur5", "nn_adaptive_impedance", "Gamma_M", "most"): "1e4: 1.00x the velocity limit, 51 N",
+    ("panda", "nn_adaptive_impedance", "Gamma_G", "most"): "1e4: 1.09x the velocity limit, 22 N",
+    ("ur5", "nn_adaptive_impedance", "Gamma_G", "most"): "1e4: 1.00x the velocity limit, 30 N",
+    ("panda", "impedance", "k_m", "most"): "8050 N/m beside the 5 kN/m table: 1.01x, 22 N",
+    ("panda", "fuzzy_unidirectional", "lambda", "most"): "256 1/s: 16.9 N",
+    ("ur5", "impedance", "m_m", "most"): "1000 kg: the force loop rings, 26 N",
+    ("ur5", "fuzzy_unidirectional", "m_m", "most"): "1000 kg: the force loop rings, 26 N",
+}
+
+
+def cases() -> list:
+    out = []
+    for robot in ("panda", "ur5"):
+        for scheme, names in GAINS.items():
+            for name in names:
+                for side in ("most", "least") if name in LEAST else ("most",):
+                    marks = ()
+                    why = OPEN.get((robot, scheme, name, side))
+                    if why is not None:
+                        marks = pytest.mark.xfail(reason=why, strict=True)
+                    out.append(pytest.param(robot, scheme, [(name, side)],
+                                            id=f"{robot}-{scheme}-{name}-{side}", marks=marks))
+            for pair, changes in PAIRS.items():
+                if all(name in names for name, _ in changes):
+                    out.append(pytest.param(robot, scheme, changes,
+                                            id=f"{robot}-{scheme}-{pair}"))
+    return out
+
+
+def scaled(param, x: float):
+    """``param``'s value of size x (every element of a vector, x I for a matrix)."""
+    sign = -1.0 if param.kind == "nd" else 1.0
+    if param.kind in MATRIX_KINDS:
+        return [sign * x] * param.size
+    if param.kind in VECTOR_KINDS:
+        return [x] * (param.size or 1)
+    return x
+
+
+def size(value) -> float:
+    x = np.asarray(value, dtype=float)
+    return float(np.linalg.norm(x, 2)) if x.ndim == 2 else float(np.max(np.abs(x)))
+
+
+def extreme(controller, param, side: str):
+    """The most (or least) size of ``param`` its bound and the controller's checks accept
+    beside the gains in force (bisection on the size), as the validated value."""
+    def accepted(x: float):
+        ok, _, value = validate(param, scaled(param, x))
+        if ok and controller.check_parameter(param.name, value) is None:
+            return value
+        return None
+
+    now = size(controller.values[param.name])
+    if side == "most":
+        if accepted(param.bound) is not None:
+            return accepted(param.bound)
+        low, high = now, float(param.bound)
+        for _ in range(50):
+            mid = math.sqrt(low * high)
+            low, high = (mid, high) if accepted(mid) is not None else (low, mid)
+        return accepted(low)
+    floor = 0.0 if param.kind.startswith("nonneg") else 1e-9
+    if accepted(floor) is not None:
+        return accepted(floor)
+    low, high = floor, now
+    for _ in range(50):
+        mid = 0.5 * (low + high)
+        low, high = (low, mid) if accepted(mid) is not None else (mid, high)
+    return accepted(high)
+
+
+@pytest.mark.parametrize("robot,scheme,changes", cases())
+def test_a_gain_at_its_accepted_extreme_holds_the_task(robot, scheme, changes):
+    controller, plant = offline.build_scheme(scheme, robot=robot)
+    controller.log_error = controller.log_warning = controller.log_info = lambda message: None
+    specs = {p.name: p for p in controller_class(scheme).parameters(
+        robots.controller_values(robots.robot(robot), scheme))}
+    applied = []
+
+    def hook(k: int, t: float, ctl, _plant) -> None:
+        if applied or t < T_SET:
+            return
+        for name, side in changes:
+            value = extreme(ctl, specs[name], side)
+            assert value is not None and ctl.check_parameter(name, value) is None
+            ctl.set_parameter(name, value)
+            applied.append((name, size(value)))
+
+    period = offline.robot_period(robot)
+    run = offline.run(controller, plant, DURATION, period, hook,
+                      limiter=offline.build.node_limiter(plant, scheme, robot, None, period),
+                      delay=offline.build.node_delay(scheme, robot))
+    n = len(controller.state_joint_names)
+    after = run.time >= T_SET
+    speed = np.abs(run.velocity[after, :n]) / controller.model.limits[2 * n:3 * n]
+    force = float(run.true_force[after, 2].max())
+    print(f"\n{robot} {scheme} {applied}: joints at {speed.max():.2f} of their limits, "
+          f"force peak {force:.1f} N, reflex {run.safe_stop_reason}")
+    assert applied
+    assert run.safe_stop_reason == 0
+    assert speed.max() < 1.0
+    assert force <= FORCE_MAX
