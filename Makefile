@@ -36,6 +36,11 @@ demo: $(STAMP) $(if $(ROBOT),$(ROBOTS_STAMP))
 	$(BIN)/python -m cr_control.tools.warm_up $(SCHEME)
 	$(BIN)/cr_session --scheme $(SCHEME) --duration $(DURATION) --mode $(MODE) --out $(OUT) $(if $(ROBOT),--robot $(ROBOT)) $(DEMO_ARGS)
 
+## Python writes its bytecode caches (__pycache__, ignored by git) for the project and the tests:
+## an environment that forbids it (PYTHONDONTWRITEBYTECODE) would have every process of the suite
+## compile them again.
+unexport PYTHONDONTWRITEBYTECODE
+
 ## The suite on both cores: a module whole on one worker, the Ray modules on one (test/conftest.py).
 PYTEST := $(BIN)/python -m pytest -q -n 2 --dist loadgroup
 

@@ -61,13 +61,14 @@ def pytest_configure(config):
                    "test-fast leaves it out (-m 'not slow')")
 
 
-#: Long offline studies (a parametrized matrix of closed-loop runs, seconds each): the first
-#: cases of each stay in the fast tier (a sample every edit runs), the rest are ``slow``.
+#: Long matrices (parametrized closed-loop runs, commands or files, a second or more each in
+#: all): the first cases of each stay in the fast tier (a sample every edit runs), the rest
+#: are ``slow`` and run in the full suite.
 STUDIES = {
     "test_robots.py::test_wiping_holds_the_force_on_the_path": 2,
     "test_robots.py::test_wiping_a_stiff_table": 1,
     "test_robots.py::test_wiping_at_three_times_the_drivers_delay": 2,
-    "test_gain_matrix.py::test_a_gain_at_its_accepted_extreme_holds_the_task": 6,
+    "test_gain_matrix.py::test_a_gain_at_its_accepted_extreme_holds_the_task": 3,
     "test_hostile_targets.py::test_no_target_wrench_sequence_winds_a_law_up": 2,
     "test_hostile_targets.py::test_zero_ft_every_0_2_s_while_pressing_10_n_leaves_the_true_force_alone": 1,
     "test_hostile_targets.py::test_a_target_pose_out_of_reach_never_needs_a_reflex": 2,
@@ -75,6 +76,17 @@ STUDIES = {
     "test_admittance_outer_loop.py::test_a_stiff_table_is_held_after_the_guarded_approach": 1,
     "test_admittance_outer_loop.py::test_nothing_drifts_over_a_minute_of_wiping": 0,
     "test_admittance_outer_loop.py::test_a_tenfold_gain_step_moves_the_command_little": 2,
+    "test_admittance_outer_loop.py::test_hostile_inputs_never_make_the_command_jump": 1,
+    "test_hostile_targets.py::test_a_1e6_n_target_wrench_is_scaled_to_max_target_force": 1,
+    "test_hostile_targets.py::test_sign_flips_at_every_cycle_of_a_500_hz_robot": 1,
+    "test_target_bounds.py::test_streamed_targets_anywhere_leave_the_force_to_the_force_loop": 2,
+    "test_target_bounds.py::test_single_targets_anywhere_leave_the_force_to_the_force_loop": 1,
+    "test_real_robots.py::test_a_guarded_start_from_above_the_table": 2,
+    "test_real_robots.py::test_a_wrong_model_costs_little": 1,
+    "test_real_robots.py::test_a_gravity_mismatch_is_caught_in_the_first_second": 2,
+    # matrices of a command or a file per case (a process or a regeneration each)
+    "test_fuzz_inputs.py::test_every_hostile_input_is_refused_in_one_line": 4,
+    "test_parameters.py::test_shipped_robot_configs_are_the_generated_wiping_task": 4,
 }
 
 
