@@ -42,7 +42,7 @@ demo: $(STAMP) $(if $(ROBOT),$(ROBOTS_STAMP))
 unexport PYTHONDONTWRITEBYTECODE
 
 ## The suite on both cores: a module whole on one worker, the Ray modules on one (test/conftest.py).
-PYTEST := $(BIN)/python -m pytest -q -n 2 --dist loadgroup
+PYTEST := $(BIN)/python -m pytest -q -n 2 --dist loadscope
 
 ## Lint, the import contracts (.importlinter, docs/architecture.md), compile the kernels once
 ## (numba caches them beside the sources), the whole test suite.

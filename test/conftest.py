@@ -90,23 +90,37 @@ STUDIES = {
 }
 
 
-def pytest_collection_modifyitems(config, items):
-    """The studies' slow cases marked; one xdist group per module (the Ray modules: one for
-    all); long modules first."""
-    def module(item) -> str:
-        return item.nodeid.split("::")[0].rpartition("/")[2]
+def _module(nodeid: str) -> str:
+    return nodeid.split("::")[0].rpartition("/")[2]
 
+
+def pytest_collection_modifyitems(config, items):
+    """The studies' slow cases marked (before ``-m`` deselects); long modules first."""
     seen: dict[str, int] = {}
     for item in items:
-        name = module(item)
-        study = f"{name}::{item.originalname}"
+        study = f"{_module(item.nodeid)}::{item.originalname}"
         if study in STUDIES:
             seen[study] = seen.get(study, 0) + 1
             if seen[study] > STUDIES[study]:
                 item.add_marker(pytest.mark.slow)
-        item.add_marker(pytest.mark.xdist_group("ray" if name in RAY_MODULES else name))
     rank = {name: i for i, name in enumerate(LONG_MODULES)}
-    items.sort(key=lambda item: rank.get(module(item), len(rank)))   # stable: order kept
+    items.sort(key=lambda item: rank.get(_module(item.nodeid), len(rank)))  # stable: order kept
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """Whole modules to a worker (their module fixtures made once), the Ray modules all to
+    one, handed out in collection order (long modules first): xdist's loadscope with these
+    scopes. (Its ``xdist_group`` marks do not group under pytest 9, which no longer reads
+    the test id xdist rewrites for them.)"""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModuleScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = _module(nodeid)
+            return "ray" if module in RAY_MODULES else nodeid.split("::")[0]
+
+    config.option.loadscopereorder = False
+    return ModuleScheduling(config, log)
 
 
 #: Whether the running test may start ROS (its ``ros`` mark), set before its fixtures.
