@@ -25,6 +25,7 @@ domains of its own (:func:`ros_probe.next_domain`, machine-wide locks).
 import fcntl
 import os
 import shutil
+import signal
 
 import pytest
 from plant_harness import make_node  # noqa: F401 - a fixture for every test module
@@ -33,6 +34,12 @@ from ros_probe import domains_taken, next_domain, release_domains
 
 from cr_control.core.ros_env import isolated_env, use_node_dds_profile
 from cr_control.nodes.discovery_settle import SETTLE_VARIABLE
+
+# Tests send Ctrl-C to the processes they start. A suite started where SIGINT is ignored (a
+# background job of a non-interactive shell) would pass that on to every one of them, and no
+# Ctrl-C would reach them: the default comes back here, for this process and its children.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # Tests that call rclpy.init in this process inherit these; the id is held for the run.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
