@@ -125,9 +125,19 @@ def test_cr_lifecycle_bad_input(ros_env):
 #: measured 1, and 2 commands that both controllers answered).
 BRAKE_CYCLES_MAX = 100
 
+#: The real-time switch's plant watchdog: 2 s without a command (the shipped 0.1 s fired once
+#: at 0.53 s, before the switch, on a loaded machine: a stall of the start, not the switch's;
+#: the watchdog has tests of its own). A switch that left the plant without commands for 2 s
+#: still stops it.
+REALTIME_WATCHDOG_CYCLES = 2000
+
+
 def switch_session(tmp_path, mode: str, duration: float, at: float):
+    overrides = ([f"plant.watchdog_missed_cycles={REALTIME_WATCHDOG_CYCLES}"]
+                 if mode == "realtime" else [])
     cfg = SessionConfig(scheme=SWITCH[0], switch_to=SWITCH[1], switch_at=at, duration=duration,
-                        mode=mode, out=tmp_path, domain_id=next_domain(), name="switch")
+                        mode=mode, out=tmp_path, domain_id=next_domain(), name="switch",
+                        overrides=overrides)
     result = Session(cfg, progress=lambda _: None).run()
     return result, load_session(result.mcap)
 
