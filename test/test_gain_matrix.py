@@ -25,7 +25,8 @@ import numpy as np
 import pytest
 
 from cr_control import offline, robots
-from cr_control.core.parameters import MATRIX_KINDS, VECTOR_KINDS, validate
+from cr_control.core.parameters import validate
+from cr_control.schemes.blocks.gain_bounds import gain_size, of_size
 from cr_control.schemes.registry import controller_class
 
 T_SET = 1.5
@@ -86,31 +87,16 @@ def cases() -> list:
     return out
 
 
-def scaled(param, x: float):
-    """``param``'s value of size x (every element of a vector, x I for a matrix)."""
-    sign = -1.0 if param.kind == "nd" else 1.0
-    if param.kind in MATRIX_KINDS:
-        return [sign * x] * param.size
-    if param.kind in VECTOR_KINDS:
-        return [x] * (param.size or 1)
-    return x
-
-
-def size(value) -> float:
-    x = np.asarray(value, dtype=float)
-    return float(np.linalg.norm(x, 2)) if x.ndim == 2 else float(np.max(np.abs(x)))
-
-
 def extreme(controller, param, side: str):
     """The most (or least) size of ``param`` its bound and the controller's checks accept
     beside the gains in force (bisection on the size), as the validated value."""
     def accepted(x: float):
-        ok, _, value = validate(param, scaled(param, x))
+        ok, _, value = validate(param, of_size(param, x))
         if ok and controller.check_parameter(param.name, value) is None:
             return value
         return None
 
-    now = size(controller.values[param.name])
+    now = gain_size(controller.values[param.name])
     if side == "most":
         if accepted(param.bound) is not None:
             return accepted(param.bound)
@@ -144,7 +130,7 @@ def test_a_gain_at_its_accepted_extreme_holds_the_task(robot, scheme, changes):
             value = extreme(ctl, specs[name], side)
             assert value is not None and ctl.check_parameter(name, value) is None
             ctl.set_parameter(name, value)
-            applied.append((name, size(value)))
+            applied.append((name, gain_size(value)))
 
     period = offline.robot_period(robot)
     run = offline.run(controller, plant, DURATION, period, hook,

@@ -407,7 +407,7 @@ def tolerated_delay(values: dict, loops_: dict[str, Loop]) -> int:
 
 
 # -- the laws' own gains --------------------------------------------------------------------------
-def _norm(value) -> float:
+def gain_size(value) -> float:
     """The size of a gain: a scalar's magnitude, a vector's largest element, a matrix's
     largest singular value (its largest gain in any direction)."""
     x = np.asarray(value, dtype=float)
@@ -433,7 +433,7 @@ class LawRule:
 def _ch5(stiffness: str, damping: str):
     def gains(v, T, M):
         m = float(v["m_m"])
-        return _norm(v[stiffness]) * T * T / m, _norm(v[damping]) * T / m
+        return gain_size(v[stiffness]) * T * T / m, gain_size(v[damping]) * T / m
     return gains
 
 
@@ -449,9 +449,9 @@ def _adaptation(v, T, M):
     varpi, varpi = P1 xi + P2 xi', acts as a damping Q_c* P2 and a stiffness Q_c* P1 +
     Q_c P2 beside the impedance A_hat(0), B_hat(0) it starts from (accelerations: the law's
     model of the arm cancels M)."""
-    p1, p2 = _norm(v["P1"]), _norm(v["P2"])
-    damping = _norm(v["A_hat_0"]) + _norm(v["Q_c_star"]) * p2
-    stiffness = _norm(v["B_hat_0"]) + _norm(v["Q_c_star"]) * p1 + _norm(v["Q_c"]) * p2
+    p1, p2 = gain_size(v["P1"]), gain_size(v["P2"])
+    damping = gain_size(v["A_hat_0"]) + gain_size(v["Q_c_star"]) * p2
+    stiffness = gain_size(v["B_hat_0"]) + gain_size(v["Q_c_star"]) * p1 + gain_size(v["Q_c"]) * p2
     return stiffness * T * T, damping * T
 
 
@@ -466,11 +466,11 @@ LAW_RULES = (
     LawRule("the estimates' linear part (3.11-3.14)",
             ("A_hat_0", "B_hat_0", "P1", "P2", "Q_c", "Q_c_star"), "plant", _adaptation),
     LawRule("the reference model (3.8), stepped each period", ("A_m", "B_m"), "internal",
-            lambda v, T, M: (_norm(v["B_m"]) * T * T, _norm(v["A_m"]) * T)),
+            lambda v, T, M: (gain_size(v["B_m"]) * T * T, gain_size(v["A_m"]) * T)),
     LawRule("the sliding gain K_s s (3.48) through the task's lightest inertia", ("K_s",),
-            "plant", lambda v, T, M: (0.0, _norm(v["K_s"]) * T / M)),
+            "plant", lambda v, T, M: (0.0, gain_size(v["K_s"]) * T / M)),
     LawRule("the compensator z' = D z + ... (3.40), stepped each period", ("D",), "internal",
-            lambda v, T, M: (0.0, _norm(v["D"]) * T)),
+            lambda v, T, M: (0.0, gain_size(v["D"]) * T)),
     LawRule("the force admittance m_a delta'' + d_a delta' = f_d - f through the arm",
             ("force_admittance_mass", "force_admittance_damping"), "plant",
             lambda v, T, M: (0.0, float(v["force_admittance_damping"]) * T
@@ -503,17 +503,17 @@ def law_refusal(values: dict, period: float, delay_cycles: int, task_inertia: fl
 
 def _shown(value) -> str:
     x = np.asarray(value, dtype=float)
-    return f"{_norm(x):g}" if x.size > 1 else f"{float(x):g}"
+    return f"{gain_size(x):g}" if x.size > 1 else f"{float(x):g}"
 
 
-def _scaled(param: Param, x: float):
-    """``param``'s value of size x (a vector: every element; a matrix: x I, -x I if negative
-    definite; a scalar: x)."""
+def of_size(param: Param, x: float):
+    """``param``'s value of size x (:func:`gain_size`), as a parameter is written: a vector's
+    every element x, a matrix x I in its diagonal form (-x I if negative definite), a scalar x."""
     sign = -1.0 if param.kind == "nd" else 1.0
     if param.kind in MATRIX_KINDS:
-        return sign * x * np.eye(param.size)
+        return [sign * x] * param.size
     if param.kind in VECTOR_KINDS:
-        return np.full(param.size or 1, x)
+        return [x] * (param.size or 1)
     return x
 
 
@@ -536,10 +536,10 @@ def law_range(param: Param, values: dict, period: float, delay_cycles: int,
 def _law_range(param: Param, values: dict, period: float, delay_cycles: int,
                task_inertia: float) -> tuple[float, float]:
     def ok(x: float) -> bool:
-        return law_refusal({**values, param.name: _scaled(param, x)}, period, delay_cycles,
+        return law_refusal({**values, param.name: of_size(param, x)}, period, delay_cycles,
                            task_inertia, param.name) is None
     top = float(param.bound)
-    base = _norm(values[param.name])
+    base = gain_size(values[param.name])
     high = top
     if not ok(top):
         low = base if base > 0.0 and ok(base) else 0.0
@@ -587,10 +587,6 @@ def law_parameters(specs: list[Param], values: dict, period: float, delay_cycles
                 f"{GAIN_MARGIN:g}; judged with the gains in force on a change)")
         if least > 0.0:
             text += f"; at least {least:.3g} with them"
-        default = p.default
-        if _norm(values[p.name]) > bound:         # the default lowered to the bound
-            sign = -1.0 if p.kind == "nd" else 1.0
-            default = ([sign * bound] * p.size if p.kind in MATRIX_KINDS else
-                       [bound] * (p.size or 1) if p.kind in VECTOR_KINDS else bound)
+        default = of_size(p, bound) if gain_size(values[p.name]) > bound else p.default
         out.append(replace(p, bound=bound, default=default, description=text + "."))
     return out
