@@ -322,3 +322,53 @@ def test_loop_summary_warns_plainly_when_a_real_time_loop_fell_behind():
     assert "WARNING" in analysis.loop_summary(dict(good, loop_rate_mean_hz=660.0))[-1]
     assert len(analysis.loop_summary(behind, realtime=False)) == 1  # lockstep: no deadline
     assert analysis.loop_summary({}) == []
+
+
+def _two_controllers(path: Path, first: range, second: range) -> None:
+    """Statuses and commands of controllers "a" (every status field 1) then "b" (2) at the
+    stamps 100 + i/1000 of the given ranges, recorded in that order; "a" sends the command
+    of i = 50 twice (a repeated stamp that no switch explains)."""
+    writer = McapBagWriter(path)
+    commands = writer.add_topic(topics.JOINT_COMMANDS, "sensor_msgs/msg/JointState",
+                                has_header=True)
+    log = 1_700_000_000
+    for name, indices, value in (("a", first, 1.0), ("b", second, 2.0)):
+        topic = writer.add_topic(topics.status_topic(name), "std_msgs/msg/Float64MultiArray")
+        for i in indices:
+            row = [T_START + i * 1e-3] + [value] * (len(topics.STATUS_FIELDS) - 1)
+            writer.write(topic, labelled(topics.STATUS_FIELDS, row), log)
+            for _ in range(2 if (name, i) == ("a", 50) else 1):
+                command = stamped(JointState(name=JOINTS, effort=[value, value]),
+                                  T_START + i * 1e-3)
+                writer.write(commands, serialize_message(command), log)
+            log += 1
+    writer.close()
+
+
+@pytest.mark.parametrize("overlap", [0, 1, 5])
+def test_a_live_switch_is_joined_with_the_first_answers(tmp_path, overlap):
+    """The second controller's first statuses at or before the first's last (both answered
+    the states the second held or had queued when activated): a switch, each stamp once, the
+    first's rows kept; the commands' stamps in the overlap not counted as going backwards or
+    repeating, the one repeated elsewhere counted."""
+    path = tmp_path / "switch.mcap"
+    _two_controllers(path, range(0, 101), range(101 - overlap, 200))
+    session = analysis.load_session(path)
+    assert session.controllers == ["a", "b"] and not session.warnings
+    assert session.switches == [(pytest.approx(T_START + (101 - overlap) * 1e-3), "b")]
+    stamps = session.status["stamp"]
+    assert len(stamps) == 200 and np.all(np.diff(stamps) > 0)
+    values = session.status[topics.STATUS_FIELDS[1]]
+    assert np.all(values[:101] == 1.0) and np.all(values[101:] == 2.0)
+    commands = session.joint_commands
+    assert (commands.stamps_backwards, commands.stamps_repeated) == (0, 1)
+
+
+def test_two_controllers_at_once_are_not_a_switch(tmp_path):
+    """An overlap longer than a switch leaves (0.2 s): a second controller at once."""
+    path = tmp_path / "rogue.mcap"
+    _two_controllers(path, range(0, 301), range(100, 400))
+    session = analysis.load_session(path)
+    assert session.controllers == ["a"] and len(session.status["stamp"]) == 301
+    assert session.warnings == ["several controllers ['a', 'b']; analysing a"]
+    assert session.joint_commands.stamps_backwards == 1

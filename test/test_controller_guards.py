@@ -294,14 +294,18 @@ def test_a_deactivated_node_brakes_until_another_controller_commands(node):
     """Deactivated, a task-space controller answers every state with its brake (marked
     frame_id "brake": the plant follows another expected controller at once), not with its
     last command and not with silence (a forward_command_controller would hold the last
-    command forever); another controller's command ends it; activated again, the law
-    commands."""
+    command forever); another controller's command after its first brake ends it; activated
+    again, the law commands."""
     moving = {"position": (3.0, -2.4)}
     node._on_joint_state(state(0, **moving), GID_A)
     law = deserialize_message(node.published[-1], JointState)
     assert law.header.frame_id == ""
     node.trigger_deactivate()
     assert not node.active
+    # another's command before this node's first brake (the plant, following this node,
+    # refused it): braking goes on, or a lockstep plant would wait for nobody
+    node.out.seen(serialize_message(JointState(name=["joint1", "joint2"], effort=[1.0, 2.0])))
+    assert node.out.braking
     vel = JointState(name=["joint1", "joint2"], position=[3.0, -2.4], velocity=[0.5, -0.5])
     for k in range(1, 4):
         vel.header.stamp.sec, vel.header.stamp.nanosec = 7, k * 1_000_000
@@ -400,8 +404,10 @@ def test_an_inactive_node_reads_one_state_and_answers_the_newest_at_activation(n
     of that source are only kept, not deserialised; no command while inactive; at
     activation the newest is read and answered."""
     node.trigger_deactivate()
+    node._on_joint_state(state(0), GID_A)                    # its brake
     node.out.seen(serialize_message(JointState(name=["joint1", "joint2"], effort=[1.0, 2.0])))
     assert not node.active and not node.out.braking
+    node.published.clear()
     reads = []
     read = node.inputs.read_state
     monkeypatch.setattr(node.inputs, "read_state", lambda data: reads.append(data) or read(data))

@@ -20,6 +20,8 @@ import pytest
 from ros_probe import next_domain, start_node, stop_node
 
 from cr_control.analysis.analyze import load_session, metrics
+from cr_control.analysis.metrics import integrity_warnings
+from cr_control.analysis.session_file import SWITCH_OVERLAP_S
 from cr_control.schemes.registry import controller_class
 from cr_control.tools.session import Session, SessionConfig, SessionError, analyse
 
@@ -149,11 +151,17 @@ def _check_switch(result, session, at: float) -> None:
     assert session.timing["safe_stop"].max() == 0.0
     switched = (result.logs / "switch.log").read_text()
     assert "/adaptive_impedance inactive, /robust_adaptive_impedance active" in switched
-    # One law at a time: the first's last status comes before the second's first.
+    # One law at a time: the second's first status after the first's last, or (lockstep,
+    # where the deactivation races the plant's next state) on states the second held or had
+    # queued when activated, which the first's law answered just before (the plant stepped
+    # with those answers): at most SWITCH_OVERLAP_S of them (seen: 1 state, twice in ~40 runs).
     first = session.labelled["/adaptive_impedance/status"]["stamp"]
     second = session.labelled["/robust_adaptive_impedance/status"]["stamp"]
     t0 = session.wrench.time[0]
-    assert first[-1] < second[0] and abs(second[0] - t0 - at) < 0.5
+    print(f"the first's last status {first[-1] - t0:.3f} s, the second's first "
+          f"{second[0] - t0:.3f} s")
+    assert first[-1] - second[0] <= SWITCH_OVERLAP_S and abs(second[0] - t0 - at) < 0.5
+    assert session.controllers == list(SWITCH)
     assert session.message_counts["/robust_adaptive_impedance/transition_event"] >= 2
     # Contact is never lost: the chapter 3 force (it starts at zero, touching) stays up once
     # it has built up (4 N: ~0.3 s into the run; judged from there, as a real-time start may
@@ -177,7 +185,7 @@ def test_live_switch_lockstep(tmp_path):
     assert m["controller"] == "adaptive_impedance -> robust_adaptive_impedance"
     assert abs(m["switch_to_robust_adaptive_impedance_at_s"] - 1.0) < 0.2
     # two controllers, two /joint_commands publishers: expected, not cross-talk
-    assert m["publishers_joint_commands"] == 2 and m["data_warnings"] == 0
+    assert m["publishers_joint_commands"] == 2 and m["data_warnings"] == 0, integrity_warnings(m)
     # the cycles the first controller's brake answered (from its deactivation to the second's
     # first command: 1 here, more on a loaded machine, where the lockstep loop runs on with
     # the brake for the wall time of the activation) have no law's status

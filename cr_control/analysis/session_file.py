@@ -58,6 +58,17 @@ class JointSeries:
     #: Messages, in the order recorded, stamped before (after) or at the previous one.
     stamps_backwards: int = 0
     stamps_repeated: int = 0
+    #: The stamps of those messages (the first MAX_IRREGULAR), backwards then repeated.
+    backwards_at: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    repeated_at: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def excuse(self, windows: list[tuple[float, float]]) -> None:
+        """Stop counting the backwards or repeated stamps inside ``windows`` ([first, last]
+        stamps, s): a live switch's, where both controllers answered the same states."""
+        def inside(stamps: np.ndarray) -> int:
+            return int(sum(np.count_nonzero((stamps >= lo) & (stamps <= hi)) for lo, hi in windows))
+        self.stamps_backwards -= inside(self.backwards_at)
+        self.stamps_repeated -= inside(self.repeated_at)
 
 
 @dataclass
@@ -226,10 +237,15 @@ def _stamp(msg: Any) -> float:
     return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
+#: How many backwards or repeated stamps a topic keeps, each (the counts go on).
+MAX_IRREGULAR = 10_000
+
+
 class _Rows:
     """Fixed-width float rows stored compactly, with a time column to sort by.
 
-    Counts, in the order rows are added, times that go backwards or repeat.
+    Counts, in the order rows are added, times that go backwards or repeat (and keeps the
+    first :data:`MAX_IRREGULAR` of each).
     """
 
     def __init__(self, width: int) -> None:
@@ -238,14 +254,20 @@ class _Rows:
         self.values = array("d")
         self.backwards = 0
         self.repeated = 0
+        self.backwards_at: list[float] = []
+        self.repeated_at: list[float] = []
         self._last: float | None = None      # the last counted time
 
     def add(self, time: float, row: Sequence[float], counted: bool = True) -> None:
         """A row; ``counted`` False: its time is neither judged nor judged against."""
         if counted:
-            if self._last is not None:
-                self.backwards += time < self._last
-                self.repeated += time == self._last
+            if self._last is not None and time <= self._last:
+                backwards = time < self._last
+                self.backwards += backwards
+                self.repeated += not backwards
+                kept = self.backwards_at if backwards else self.repeated_at
+                if len(kept) < MAX_IRREGULAR:
+                    kept.append(time)
             self._last = time
         self.time.append(time)
         self.values.extend(row)
@@ -307,7 +329,9 @@ class _JointTopic:
         return JointSeries(time, self.names,
                            *(table[:, k * n:(k + 1) * n] for k in range(len(self.KEYS))),
                            stamps_backwards=self.rows.backwards,
-                           stamps_repeated=self.rows.repeated)
+                           stamps_repeated=self.rows.repeated,
+                           backwards_at=np.array(self.rows.backwards_at),
+                           repeated_at=np.array(self.rows.repeated_at))
 
 
 class _WrenchTopic:
@@ -458,22 +482,43 @@ def _note_publishers(session: Session, role: str, count: int | None) -> None:
 
 
 def _join(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """Labelled arrays of consecutive controllers as one: their common fields, in time order."""
+    """Labelled arrays of consecutive controllers as one: their common fields, in time order.
+    States both answered (:data:`SWITCH_OVERLAP_S`: the plant stepped with the earlier's
+    answers) keep the earlier's rows."""
     common = [f for f in parts[0] if all(f in part for part in parts[1:])]
-    return {f: np.concatenate([part[f] for part in parts]) for f in common}
+    kept, last = [], -np.inf
+    for part in parts:
+        stamps = part.get("stamp", np.zeros(0))
+        rows = stamps > last
+        kept.append({f: part[f][rows] for f in common})
+        if len(stamps):
+            last = max(last, float(stamps[-1]))
+    return {f: np.concatenate([part[f] for part in kept]) for f in common}
+
+
+#: A live switch: how long (s of stamps) the second controller's first statuses may precede
+#: the first's last. Activated, it answers the states it held and had queued; in lockstep,
+#: where the deactivation races the plant's next state, the first's law may have answered
+#: them just before (a busy machine leaves a few queued); the plant stepped with those
+#: answers and drops the second's, stamped for states gone.
+SWITCH_OVERLAP_S = 0.1
 
 
 def _pick_controllers(session: Session, names: list[str]) -> None:
     """The controller(s) whose status is analysed. Several whose statuses follow one another
-    in time (a live switch: each one's first status after the previous one's last) are
-    joined; several at once (a rogue second controller) are warned about, the first kept."""
+    in time (a live switch: each one's first status at most :data:`SWITCH_OVERLAP_S` before
+    the previous one's last, its last after it) are joined, and the commands' stamps both
+    answered are not counted as going backwards or repeating; several at once (a rogue
+    second controller) are warned about, the first kept."""
     statuses = {n: session.labelled[topics.status_topic(n)] for n in names}
     ordered = sorted(names, key=lambda n: statuses[n]["stamp"][0] if len(statuses[n]["stamp"])
                      else np.inf)
     spans = [(statuses[n]["stamp"][0], statuses[n]["stamp"][-1]) for n in ordered
              if len(statuses[n]["stamp"])]
+    pairs = list(zip(spans, spans[1:], strict=False))
     switched = len(spans) == len(ordered) > 1 and all(
-        later[0] > earlier[1] for earlier, later in zip(spans, spans[1:], strict=False))
+        earlier[1] - later[0] <= SWITCH_OVERLAP_S and later[1] > earlier[1]
+        for earlier, later in pairs)
     session.controller = ordered[0] if switched else names[0]
     if not switched:
         session.controllers = [names[0]]
@@ -483,6 +528,9 @@ def _pick_controllers(session: Session, names: list[str]) -> None:
             session.warnings.append(f"several controllers {names}; analysing {names[0]}")
         return
     session.controllers = ordered
+    if session.joint_commands is not None:
+        session.joint_commands.excuse([(later[0], earlier[1]) for earlier, later in pairs
+                                       if earlier[1] >= later[0]])
     session.switches = [(float(statuses[n]["stamp"][0]), n) for n in ordered[1:]]
     session.status = _join([statuses[n] for n in ordered])
     session.reference = _join([session.labelled.get(topics.reference_topic(n), {"stamp": np.zeros(0)})

@@ -8,8 +8,11 @@ way, and the plant follows another expected controller from that one's first com
 Deactivated (:meth:`CommandOut.brake_until_relieved`), a node with a brake answers every
 state with it, as a real robot holds the last command it got forever (a
 forward_command_controller, ros2_controllers #95), until a command that is no brake
-appears on /joint_commands: another controller has taken over, and the node falls
-silent. Only then does the node read /joint_commands (a subscription made at deactivation,
+appears on /joint_commands after its first brake: another controller has taken over, and
+the node falls silent. (Not before that brake: the plant still follows this node, whose
+last command was its law's, and refuses the other's; fallen silent then, it would leave
+the plant waiting, in lockstep, for an answer nobody it follows sends.) Only while
+deactivated does the node read /joint_commands (a subscription made at deactivation,
 dropped at activation): while it commands, the loop's commands are no input of its.
 """
 
@@ -43,11 +46,14 @@ class CommandOut:
         self.last = b""
         #: Deactivated and braking until another controller commands.
         self.braking = False
+        #: A brake has gone out since the deactivation.
+        self.braked = False
         self._watch = None
 
     def publish(self, values: np.ndarray, stamp: tuple[int, int], brake: bool = False) -> None:
         """Publish ``values`` as the command (or, ``brake``, the brake) answering ``stamp``."""
         message = self._brake if brake else self._command
+        self.braked = self.braked or (brake and self.braking)
         self._values[brake][:] = values
         message.set_stamp(*stamp)
         self.last = message.message()
@@ -58,13 +64,15 @@ class CommandOut:
 
     def brake_until_relieved(self) -> None:
         """Deactivated: brake until a command that is no brake appears (module docstring)."""
-        self.braking = True
+        self.braking, self.braked = True, False
         self._watch = self.node.create_subscription(
             JointState, topics.JOINT_COMMANDS, self.seen, CONTROL_QOS, raw=True)
 
     def seen(self, data: bytes) -> None:
-        """A message on /joint_commands while braking: another controller's command ends it."""
-        if self.braking and joint_state_frame_id(data) not in (topics.BRAKE_FRAME_ID, None):
+        """A message on /joint_commands while braking: another controller's command, once
+        this node's brake has gone out, ends it."""
+        other = joint_state_frame_id(data) not in (topics.BRAKE_FRAME_ID, None)
+        if self.braking and self.braked and other:
             self.braking = False
             self.node.get_logger().info("another controller commands: brake released")
             self.relieved()
