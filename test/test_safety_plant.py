@@ -32,6 +32,8 @@ QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 #: (stalls of 100+ ms are seen here) loses none of the ticks the test counts.
 DEEP_QOS = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
 PERIOD = 1e-3
+#: How far from the brake law's stop (q + q'/w_b) a safe-stopped arm may come to rest (m).
+BRAKE_REST_TOLERANCE = 0.002
 SETTINGS = {p.name: p.default for p in NODE_PARAMETERS}
 PLANT = [sys.executable, "-m", "cr_sim.plant_node"]
 CONTROLLER = [sys.executable, "-m", "cr_control.nodes.controller_node", "adaptive_impedance"]
@@ -149,9 +151,11 @@ def describe_states(stamps: list[int], efforts: list[tuple], killed_ns: int) -> 
 @pytest.mark.ros
 def test_killed_controller_leads_to_a_safe_stop_and_the_arm_stays_put(ros_env, probe):
     """SIGKILL the controller of a real-time session: the plant brakes after
-    watchdog_missed_cycles ticks without a command, the end effector moves < 10 mm after
-    that, /plant/timing shows safe_stop = 1, and it resumes only when the resume parameter
-    is set (which then resets itself).
+    watchdog_missed_cycles ticks without a command, the end effector comes to rest within
+    2 mm of where the brake law stops it (and never farther out), /plant/timing shows
+    safe_stop = 1, and it resumes only when the resume parameter is set (which then resets
+    itself). (How far the brake law's stop is depends on the speed the held command gave
+    the arm: 8-9 mm here; a bound of 10 mm on it failed at 10.7 mm on a loaded machine.)
     watchdog_missed_cycles 300 (0.3 s), as in test_diagnostics: with the default 100 a CI
     run (2026-11-26) found no held run of 97+ states after the kill, beside a 124.6 ms gap
     between the states received; a controller stall of 100+ ms before the kill (a safe stop
@@ -203,13 +207,25 @@ def test_killed_controller_leads_to_a_safe_stop_and_the_arm_stays_put(ros_env, p
         # that applied it; 1 more for a command that came late.
         assert held <= missed + 1, held
 
+        # Where the brakes bring the arm to rest: q + q'/w_b from the state they began at
+        # (cr_control.models.brake). How far that is depends on the speed the held command
+        # gave the arm in its 0.3 s (8.3-8.9 mm here, at ~1.4 rad/s), not on the brakes;
+        # what the brakes do is come to rest there (measured 1.06-1.13 mm off: the contact
+        # spring and the first brake torques clipped at the 20 N m limit) and stay.
         arm = make_plant("compliant_plane").arm
-        r0 = arm.tool_position(np.array(states[braking - 1].position))
+        q_b, v_b = np.array(states[braking - 1].position), np.array(states[braking - 1].velocity)
+        r0 = arm.tool_position(q_b)
+        rest = arm.tool_position(stop_position(q_b, v_b, SETTINGS["brake_frequency"]))
         drift = max(np.linalg.norm(arm.tool_position(np.array(s.position)) - r0)
                     for s in states[braking:])
-        print(f"safe stop after {held} ticks without a command; end effector moved "
-              f"{1e3 * drift:.2f} mm after it")
-        assert drift < 0.010, f"end effector moved {1e3 * drift:.1f} mm after the safe stop"
+        off = np.linalg.norm(arm.tool_position(np.array(states[-1].position)) - rest)
+        print(f"safe stop after {held} ticks without a command, at {np.abs(v_b).max():.2f} "
+              f"rad/s; end effector moved {1e3 * drift:.2f} mm after it, the brake law's "
+              f"stop {1e3 * np.linalg.norm(rest - r0):.2f} mm; at rest {1e3 * off:.2f} mm "
+              "from it")
+        assert off < BRAKE_REST_TOLERANCE, f"at rest {1e3 * off:.2f} mm from the brake law's stop"
+        assert drift < np.linalg.norm(rest - r0) + BRAKE_REST_TOLERANCE, (
+            f"end effector moved {1e3 * drift:.1f} mm after the safe stop")
         assert np.abs(states[-1].velocity).max() < 1e-3                 # at rest
 
         result = probe.call(SetParameters, "/plant/set_parameters",
