@@ -2,8 +2,10 @@
 task-space schemes, set live to its accepted extreme (the largest value its bound and the
 discrete-time rule accept beside the gains in force, and for a damping or a mass the least),
 one at a time and in the careless user's pairs, on the Panda and the UR5 wiping at the profile's
-delay, with the plant node's command limits (a lockstep session's): no reflex, every joint
-below its velocity limit, the true contact force at most 1.5 x the 10 N target. The change is
+delay (and, with a wrist force/torque sensor, ``panda_ft`` and ``ur5_ft``, the gains of the loops
+that close through the measured force: the others see the same arm as without it), with the
+plant node's command limits (a lockstep session's): no reflex, every joint below its velocity
+limit, the true contact force at most 1.5 x the 10 N target. The change is
 made as the node makes it (check_parameter, then set_parameter) 1.5 s into the run, judged over
 the 2 s after.
 
@@ -14,7 +16,9 @@ ended in the joint-velocity reflex (measured 1.00-1.14x the limit) or above 15 N
 
 What still fails at its accepted extreme is marked xfail with its figures: those loops close
 through the contact (its stiffness is the environment's, not the controller's to know) or
-through the NN's learning, which the rule does not model.
+through the NN's learning, which the rule does not model; and, with the wrist sensor only, the
+robust term's D at its bound (1.01-1.09x the velocity limit on panda_ft, 17-32 N on ur5_ft),
+which the rule's delay loop does not explain yet.
 """
 
 from __future__ import annotations
@@ -55,6 +59,12 @@ PAIRS = {
     "every_adaptation_gain": [(name, "most") for name in ("Q_a", "Q_b", "Q_c", "Q_a_star",
                                                            "Q_b_star", "Q_c_star")],
 }
+#: The gains whose loop closes through the measured force (the wrist sensor's profiles).
+FORCE_LOOP = {"force_admittance_mass", "force_admittance_damping", "A_m", "B_m", "P1", "P2",
+              "Q_a", "Q_b", "Q_c", "Q_a_star", "Q_b_star", "Q_c_star", "K_s", "D", "Gamma_M",
+              "Gamma_C", "Gamma_G", "m_m", "d_m", "k_m", "lambda", "d_s", "d_med", "d_b"}
+#: The robots: the sensor-less profiles with every gain, the wrist sensor's with FORCE_LOOP's.
+ROBOTS = {"panda": None, "ur5": None, "panda_ft": FORCE_LOOP, "ur5_ft": FORCE_LOOP}
 #: Still failing at the accepted extreme (measured at the profile's delay).
 OPEN = {
     ("panda", "nn_adaptive_impedance", "Gamma_M", "most"): "1e4: 1.12x the velocity limit, 38 N",
@@ -65,14 +75,28 @@ OPEN = {
     ("panda", "fuzzy_unidirectional", "lambda", "most"): "256 1/s: 16.9 N",
     ("ur5", "impedance", "m_m", "most"): "1000 kg: the force loop rings, 26 N",
     ("ur5", "fuzzy_unidirectional", "m_m", "most"): "1000 kg: the force loop rings, 26 N",
+    # the wrist sensor's profiles (its measured force, not the driver's estimate)
+    ("panda_ft", "robust_adaptive_impedance", "D", "most"): "999: 1.01x the velocity limit",
+    ("panda_ft", "nn_adaptive_impedance", "D", "most"): "999: 1.09x the velocity limit",
+    ("ur5_ft", "robust_adaptive_impedance", "D", "most"): "499: 16.9 N",
+    ("ur5_ft", "nn_adaptive_impedance", "D", "most"): "499: 31.7 N",
+    ("panda_ft", "nn_adaptive_impedance", "Gamma_M", "most"): "1e4: 1.03x the velocity limit",
+    ("ur5_ft", "nn_adaptive_impedance", "Gamma_M", "most"): "1e4: the force reflex, 59 N",
+    ("panda_ft", "nn_adaptive_impedance", "Gamma_G", "most"): "1e4: 1.03x the velocity limit",
+    ("ur5_ft", "nn_adaptive_impedance", "Gamma_G", "most"): "1e4: 1.01x the velocity limit, 38 N",
+    ("panda_ft", "impedance", "m_m", "most"): "1000 kg: the force loop rings, 27 N",
+    ("panda_ft", "fuzzy_unidirectional", "m_m", "most"): "1000 kg: the force loop rings, 27 N",
+    ("ur5_ft", "impedance", "m_m", "most"): "1000 kg: the force loop rings, 21 N",
+    ("ur5_ft", "fuzzy_unidirectional", "m_m", "most"): "1000 kg: the force loop rings, 21 N",
+    ("ur5_ft", "robust_adaptive_impedance", "force_admittance_mass", "most"): "1000 kg: 15.3 N",
 }
 
 
 def cases() -> list:
     out = []
-    for robot in ("panda", "ur5"):
+    for robot, only in ROBOTS.items():
         for scheme, names in GAINS.items():
-            for name in names:
+            for name in (n for n in names if only is None or n in only):
                 for side in ("most", "least") if name in LEAST else ("most",):
                     marks = ()
                     why = OPEN.get((robot, scheme, name, side))
@@ -81,7 +105,7 @@ def cases() -> list:
                     out.append(pytest.param(robot, scheme, [(name, side)],
                                             id=f"{robot}-{scheme}-{name}-{side}", marks=marks))
             for pair, changes in PAIRS.items():
-                if all(name in names for name, _ in changes):
+                if all(name in names and (only is None or name in only) for name, _ in changes):
                     out.append(pytest.param(robot, scheme, changes,
                                             id=f"{robot}-{scheme}-{pair}"))
     return out
