@@ -210,7 +210,7 @@ def test_killed_controller_leads_to_a_safe_stop_and_the_arm_stays_put(ros_env, p
         # Where the brakes bring the arm to rest: q + q'/w_b from the state they began at
         # (cr_control.models.brake). How far that is depends on the speed the held command
         # gave the arm in its 0.3 s (8.3-8.9 mm here, at ~1.4 rad/s), not on the brakes;
-        # what the brakes do is come to rest there (measured 1.06-1.13 mm off: the contact
+        # what the brakes do is come to rest there (measured 1.05-1.17 mm off: the contact
         # spring and the first brake torques clipped at the 20 N m limit) and stay.
         arm = make_plant("compliant_plane").arm
         q_b, v_b = np.array(states[braking - 1].position), np.array(states[braking - 1].velocity)
