@@ -1,8 +1,12 @@
 """ament_python package cr_control: holds the Python packages cr_control and cr_sim."""
 
+import shutil
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
+from setuptools.command.build_py import build_py
+
 
 PACKAGE = "cr_control"
 
@@ -22,8 +26,30 @@ SCHEMES = [
     "fjr_singular_perturbation",
 ]
 
+
+
+class BuildPyWithKernels(build_py):
+    """Also carries the numba kernels already compiled in the source tree (``__pycache__``'s
+    ``*.nbi`` index and ``*.nbc`` data files, which numba keys by the source's content, not
+    its path): a tree warmed up with ``python -m cr_control.tools.warm_up`` installs nodes
+    that start without compiling them again."""
+
+    def run(self) -> None:
+        super().run()
+        for package in self.packages:
+            cache = Path(self.get_package_dir(package)) / "__pycache__"
+            kernels = sorted(cache.glob("*.nbi")) + sorted(cache.glob("*.nbc"))
+            if not kernels:
+                continue
+            target = Path(self.build_lib, *package.split("."), "__pycache__")
+            target.mkdir(parents=True, exist_ok=True)
+            for kernel in kernels:
+                shutil.copy2(kernel, target / kernel.name)
+
+
 setup(
     name=PACKAGE,
+    cmdclass={"build_py": BuildPyWithKernels},
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
     package_data={"cr_control.core": ["fastdds_profile.xml", "fastdds_profile_lockstep.xml",

@@ -33,8 +33,8 @@ PACKAGE_FILES = ["package.xml", "setup.py", "setup.cfg"]
 PACKAGE_DIRS = ["resource", "config", "cr_control", "cr_sim", "launch"]
 TOOLS = ["plant", "recorder", "cr_session", "cr_analyze", "cr_benchmark", "cr_param"]
 BUILD_TIMEOUT_S = 120
-#: A fresh install compiles each node's numba kernels before it answers (more of them since
-#: the wrist sensor and the contact guard; ~1 min on a loaded machine).
+#: A node answers once its numba kernels are loaded (installed compiled from the source tree;
+#: compiled at its first start, ~1 min on a loaded machine, where the source tree had none).
 QUERY_DEADLINE_S = 180
 STOP_TIMEOUT_S = 15
 
@@ -57,7 +57,10 @@ def test_setup_py_schemes_are_the_registry():
 
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory) -> Path:
-    """A colcon workspace holding a copy of the package, built with plain ``colcon build``."""
+    """A colcon workspace holding a copy of the package, built with plain ``colcon build``.
+    The copy carries the numba kernels the suite compiled (``__pycache__/*.nbi, *.nbc``;
+    make test's warm-up), as a source tree where ``python -m cr_control.tools.warm_up`` ran:
+    setup.py installs them beside the installed sources."""
     ws = tmp_path_factory.mktemp("colcon_ws")
     src = ws / "src" / PACKAGE
     src.mkdir(parents=True)
@@ -66,7 +69,7 @@ def workspace(tmp_path_factory) -> Path:
     for name in PACKAGE_DIRS:
         if (REPO / name).is_dir():
             shutil.copytree(REPO / name, src / name,
-                            ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info"))
+                            ignore=shutil.ignore_patterns("*.pyc", "*.egg-info"))
     colcon = Path(sys.executable).parent / "colcon"
     assert colcon.is_file(), f"no colcon next to {sys.executable}: run `make venv` (requirements.txt)"
     env = dict(os.environ)
@@ -117,6 +120,10 @@ def test_install_tree_has_what_ros_tools_look_for(workspace):
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE).is_file()
     site = _site_packages(workspace)
     assert (site / "cr_control" / "__init__.py").is_file() and (site / "cr_sim" / "__init__.py").is_file()
+    # The kernels compiled in the source tree are installed beside their sources.
+    kernels = {p.relative_to(REPO) for d in ("cr_control", "cr_sim") for p in (REPO / d).rglob("*.nbi")}
+    installed = {p.relative_to(site) for d in ("cr_control", "cr_sim") for p in (site / d).rglob("*.nbi")}
+    assert kernels <= installed, f"not installed: {sorted(map(str, kernels - installed))[:5]}"
     # The nodes' Fast DDS profile (cr_control.core.ros_env.NODE_DDS_PROFILE) is package data.
     assert (site / "cr_control" / "core" / "fastdds_profile.xml").read_bytes() == (
         REPO / "cr_control" / "core" / "fastdds_profile.xml").read_bytes()
