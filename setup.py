@@ -7,7 +7,6 @@ from pathlib import Path
 from setuptools import find_packages, setup
 from setuptools.command.build_py import build_py
 
-
 PACKAGE = "cr_control"
 
 # Per-scheme executables only choose the scheme of the one generic controller node.

@@ -11,8 +11,9 @@ substitutions:
   with ``--timeout 30`` (the default 3 s bounds discovery, slower on a loaded CI machine);
 - ``sessions/<dir>/session.mcap``, ``a.mcap b.mcap c.mcap`` -> recordings made here;
 - ``OUT``, ``/tmp/runs``, ``compare/`` -> a temporary directory;
-- sessions run 1 s (``--duration 1`` added; ``make demo DURATION=1``) and recordings go to a
-  temporary ``--out``, so the test stays short;
+- sessions run 1 s (``--duration 1`` added; ``make demo DURATION=1``; a live switch
+  ``--switch-at 0.5`` and 1.5 s) and recordings go to a temporary ``--out``, so the test
+  stays short;
 - the README's long-running nodes (``.venv/bin/plant``, ``.venv/bin/adaptive_impedance``) run
   until the commands addressed to them are done, then get Ctrl-C;
 - ``tool.yaml``, ``sweeps/...``, ``tuned/``, ``report/`` -> the temporary directory, and the
@@ -100,8 +101,10 @@ class Readme:
         if "--help" not in args:
             out = self.tmp / f"sessions{len(self.recordings)}"
             args = [a if a != "/tmp/runs" else str(out) for a in args]
-            switch_at = float(args[args.index("--switch-at") + 1]) if "--switch-at" in args else 0.0
-            args += ["--duration", f"{max(1.0, switch_at + 1.0):g}"]
+            switch_at = 0.0
+            if "--switch-at" in args:      # the switch 0.5 s in, 0.5 s of the second law
+                args[args.index("--switch-at") + 1] = str(switch_at := 0.5)
+            args += ["--duration", f"{switch_at + 1.0:g}"]
             if "--out" not in args:
                 args += ["--out", str(out)]
         proc = self.run(args, own_domain=True)
