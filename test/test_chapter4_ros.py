@@ -25,6 +25,7 @@ from std_msgs.msg import Float64MultiArray, String
 
 from cr_control.core import topics
 from cr_control.core.paths import config_file
+from cr_control.nodes.discovery_settle import SETTLE_VARIABLE
 from cr_control.nodes.qos import READY_QOS
 
 pytestmark = pytest.mark.ros   # every test here starts ROS (conftest.py)
@@ -161,14 +162,16 @@ def test_plant_refuses_commands_in_the_wrong_field(scenario, joints, wrong, righ
 def test_empty_list_in_a_params_file_starts_the_node(ros_env):
     """``theta_hat_0: []`` (the shipped cmmsd_backstepping.yaml, every session's params.yaml):
     rcl cannot type an empty YAML list; the controller node reads it as an empty vector."""
+    # a discovery settle of 0.1 s: its timer's "subscribing ... now" line says the node spins
+    # (where Ctrl-C ends it quietly), whenever a loaded machine gets there
+    env = {**ros_env, SETTLE_VARIABLE: "0.1"}
     proc = start_node([*CONTROLLER, "cmmsd_backstepping", "--ros-args", "--params-file",
-                  str(config_file("cmmsd_backstepping.yaml"))], ros_env)
+                  str(config_file("cmmsd_backstepping.yaml"))], env)
     deadline = time.monotonic() + 60
     out = ""
     while time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.5)
-        if "parameters, commanding" in (out := out + (proc.stdout.readline() or "")):
-            time.sleep(1.0)         # spinning by now: SIGINT ends it quietly
+        out += proc.stdout.readline() or ""
+        if "subscribing to /joint_states now" in out:
             break
     code, rest = stop_node(proc)
     out += rest

@@ -25,9 +25,11 @@ pytestmark = [pytest.mark.ros, needs_erd]
 
 def test_identification_through_the_topics(tmp_path, ros_env):
     env = {k: v for k, v in ros_env.items() if k != "ROS_DOMAIN_ID"}   # the session takes one
+    # 600 s: longer than any start of the tool, however loaded the machine (lockstep runs ~3x
+    # real time; the tool needs ~16 s of poses); stopped with Ctrl-C once the tool is done
     session = subprocess.Popen(
         [sys.executable, "-m", "cr_control.tools.session", "--robot", "panda_ft", "--mode",
-         "lockstep", "--duration", "40", "--no-analysis", "--no-record", "--out", str(tmp_path),
+         "lockstep", "--duration", "600", "--no-analysis", "--no-record", "--out", str(tmp_path),
          "-p", "plant.surface=none", "-p", "adaptive_impedance.approach_speed=0.0"], env=env,
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
         text=True)
