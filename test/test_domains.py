@@ -35,9 +35,14 @@ HOLD = ("import sys, time\nfrom cr_control.core.ros_env import claim_domain, cla
         "print('held', lock.domain_id, flush=True)\ntime.sleep(600)\n")
 
 
-def holder() -> tuple[subprocess.Popen, int]:
-    """Another process holding a free test domain (until killed), and the domain."""
-    proc = subprocess.Popen([sys.executable, "-c", HOLD, "free"], stdout=subprocess.PIPE, text=True)
+#: Ids no test or session of the suite claims (they take 1..100): the run-of-ids test's
+#: neighbours of the held id are then free whatever the other worker holds.
+UNUSED_DOMAIN = 210
+
+
+def holder(domain: str = "free") -> tuple[subprocess.Popen, int]:
+    """Another process holding a free test domain, or ``domain`` (until killed), and the id."""
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, domain], stdout=subprocess.PIPE, text=True)
     word, domain = proc.stdout.readline().split()
     assert word == "held"
     return proc, int(domain)
@@ -89,7 +94,7 @@ def test_free_domain_id_skips_held_ids():
 
 
 def test_consecutive_domains_skip_a_run_broken_by_a_holder():
-    proc, domain = holder()                                 # another process holds one id
+    proc, domain = holder(str(UNUSED_DOMAIN))               # another process holds one id
     try:
         locks = claim_consecutive_domains(3, first=domain - 1, span=8)
         ids = [lock.domain_id for lock in locks]
