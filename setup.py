@@ -26,7 +26,6 @@ SCHEMES = [
 ]
 
 
-
 class BuildPyWithKernels(build_py):
     """Also carries the numba kernels already compiled in the source tree (``__pycache__``'s
     ``*.nbi`` index and ``*.nbc`` data files, which numba keys by the source's content, not

@@ -123,7 +123,6 @@ def test_cr_lifecycle_bad_input(ros_env):
 
 
 # -- the live switch ------------------------------------------------------------------------
-
 #: The real-time switch's plant watchdog: 2 s without a command (the shipped 0.1 s fired once
 #: at 0.53 s, before the switch, on a loaded machine: a stall of the start, not the switch's;
 #: the watchdog has tests of its own). A switch that left the plant without commands for 2 s

@@ -101,9 +101,9 @@ class Readme:
         if "--help" not in args:
             out = self.tmp / f"sessions{len(self.recordings)}"
             args = [a if a != "/tmp/runs" else str(out) for a in args]
-            switch_at = 0.0
-            if "--switch-at" in args:      # the switch 0.5 s in, 0.5 s of the second law
-                args[args.index("--switch-at") + 1] = str(switch_at := 0.5)
+            switch_at = 0.5 if "--switch-at" in args else 0.0   # then 0.5 s of the second law
+            if switch_at:
+                args[args.index("--switch-at") + 1] = f"{switch_at:g}"
             args += ["--duration", f"{switch_at + 1.0:g}"]
             if "--out" not in args:
                 args += ["--out", str(out)]
