@@ -145,7 +145,7 @@ def identify_on_robot(controller: str, settle: float, average: float,
     client = RobotPoses(controller, timeout_s)
     try:
         names = ["robot_description", "urdf_file", "base_link", "tip_link", "sensor_frame",
-                 "gravity", "approach_speed"]
+                 "gravity", "approach_speed", "desired_force"]
         p = client.parameters(names)
         if not p["sensor_frame"]:
             raise ValueError(f"{controller} has no sensor_frame: set the wrist sensor's link")
@@ -153,6 +153,10 @@ def identify_on_robot(controller: str, settle: float, average: float,
             raise ValueError(f"{controller} runs a guarded approach (approach_speed "
                              f"{p['approach_speed']:g}): start it with approach_speed 0 for the "
                              "poses in free space")
+        if any(p["desired_force"]):
+            raise ValueError(f"{controller} asks a contact force (desired_force "
+                             f"{list(p['desired_force'])}): start it with desired_force zero for "
+                             "the poses in free space")
         chain = load_chain(p["robot_description"], p["urdf_file"], p["base_link"], p["tip_link"])
         g_s, wrenches = client.run(chain, p["sensor_frame"], np.array(p["gravity"], dtype=float),
                                    tilted_poses, settle, average)
