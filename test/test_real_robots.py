@@ -14,6 +14,7 @@ import pytest
 
 from cr_control import offline, robots
 from cr_control.experiments.wiping import Case, run_case
+from cr_control.schemes.blocks import safe_stop
 from cr_control.schemes.registry import make_controller
 from cr_sim.plants.registry import make_plant
 
@@ -97,6 +98,26 @@ def test_a_matching_controller_passes_the_start_check():
         for robot in PROFILES:
             values, errors = run_case(Case(scheme, robot, clearance=0.05, duration=2.5))
             assert values["gave_up"] == 0.0 and not errors, (scheme, robot, errors)
+
+
+def test_a_force_target_in_free_space_is_named_not_gravity():
+    """A law asked 10 N at once (approach_speed 0) in free space pushes the tip down, as a
+    falling arm would move: the start check names the force target first, not gravity (a
+    session with the table removed and the profile's wiping force said "falling with gravity:
+    set robot_compensates_gravity: false")."""
+    law = make_controller("adaptive_impedance",
+                          robots.controller_values(robots.robot("panda_ft"), "adaptive_impedance"))
+    values = {**law.values, "approach_speed": 0.0}
+    down = np.array([0.0, 0.0, -0.165])
+    check = lambda values: safe_stop.start_check(      # noqa: E731
+        "adaptive_impedance", 0.797, down, np.array([0.0, 0.0, -9.81]), np.zeros(7),
+        [f"j{i}" for i in range(7)], np.full(7, 2.6), values)
+    assert list(values["desired_force"]) == [0.0, 0.0, 10.0]
+    pushed = check(values)
+    assert "the force target pushes the tip through free space" in pushed.message
+    assert pushed.brake_holds_gravity is False
+    falling = check({**values, "desired_force": [0.0, 0.0, 0.0]})
+    assert "falling with gravity" in falling.message and falling.brake_holds_gravity
 
 
 def test_a_controller_that_gives_up_brakes_through_the_command_interface():

@@ -21,8 +21,9 @@ or approaches at ``approach_speed``, the tip must not move faster than its refer
 more than ``start_speed_error``, nor any joint faster than 0.4 of its URDF velocity limit. A
 controller that adds g(q) on a robot that adds it too lifts the arm against gravity; one
 that leaves it out on a robot that does not lets the arm fall: the direction of the tip's
-velocity error along gravity names the likely cause. The brake then holds gravity only if
-the robot likely does not.
+velocity error along gravity names the likely cause. A law asked a contact force at once
+(``approach_speed`` 0) pushes the tip through free space: then that is named first. The
+brake then holds gravity only if the robot likely does not.
 """
 
 from __future__ import annotations
@@ -99,6 +100,12 @@ def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.
     if contact_rms > values.get("stability_threshold", math.inf):
         cause = (f"the contact force oscillates ({contact_rms:.3g} N RMS): the contact is too "
                  "stiff for these gains; keep stability_monitor on, or lower the gains")
+        holds = not robot_adds
+    elif values.get("approach_speed", 1.0) == 0.0 and np.any(values.get("desired_force", 0.0)):
+        cause = (f"the force target pushes the tip through free space (desired_force "
+                 f"{[float(f) for f in values['desired_force']]} asked at once, approach_speed "
+                 "0): give approach_speed for a guarded approach, or desired_force zero; "
+                 "else check robot_compensates_gravity")
         holds = not robot_adds
     elif along < -0.5 * speed and not robot_adds:
         cause = ("rising against gravity: the robot likely compensates gravity itself; set "
