@@ -44,7 +44,8 @@ unexport PYTHONDONTWRITEBYTECODE
 ## The suite on both cores: a module whole on one worker, the Ray modules on one (test/conftest.py).
 ## Three workers for the whole suite: its ROS tests wait on processes and messages for about
 ## a quarter of their time, which a third worker fills (measured: four ROS modules 89 s with
-## 2 workers, 78 s with 3); the fast tier is all computation, two workers.
+## 2 workers, 78 s with 3; the whole suite on a fresh clone 14:00-14:13, 14:25 with 2 on a
+## quiet day before: the machine is busy either way); the fast tier is all computation, two.
 PYTEST := $(BIN)/python -m pytest -q --dist loadscope
 
 ## Lint, the import contracts (.importlinter, docs/architecture.md), compile the kernels once
