@@ -64,22 +64,26 @@ def pd_polynomial(k: float, c: float, delay_cycles: int) -> np.ndarray:
     return p
 
 
+def loop_polynomial(k: float, c: float, delay_cycles: int) -> np.ndarray:
+    """The polynomial whose roots decide the loop's stability: :func:`pd_polynomial`, or with
+    k = 0 (pure damping) the velocity loop's z^(d+1) - z^d + c alone (the free position's root
+    z = 1 left out)."""
+    if k != 0.0:
+        return pd_polynomial(k, c, delay_cycles)
+    p = np.zeros(_cycles(delay_cycles) + 2)
+    p[0], p[1] = 1.0, -1.0
+    p[-1] += c
+    return p
+
+
 def spectral_radius(k: float, c: float, delay_cycles: int) -> float:
-    """The largest |root| of the loop's polynomial (module docstring); with k = 0 the free
-    position's root z = 1 is left out (the velocity loop's alone). Non-finite or negative
-    gains: inf."""
+    """The largest |root| of :func:`loop_polynomial`. Non-finite or negative gains: inf; no
+    gain at all: 1."""
     if not (math.isfinite(k) and math.isfinite(c)) or k < 0.0 or c < 0.0:
         return math.inf
-    d = _cycles(delay_cycles)
-    if k == 0.0:
-        if c == 0.0:
-            return 1.0
-        p = np.zeros(d + 2)
-        p[0], p[1] = 1.0, -1.0                       # z^(d+1) - z^d + c
-        p[-1] += c
-    else:
-        p = pd_polynomial(k, c, d)
-    return float(np.max(np.abs(np.roots(p))))
+    if k == 0.0 and c == 0.0:
+        return 1.0
+    return float(np.max(np.abs(np.roots(loop_polynomial(k, c, delay_cycles)))))
 
 
 def stable(k: float, c: float, delay_cycles: int) -> bool:
@@ -92,13 +96,8 @@ def stable(k: float, c: float, delay_cycles: int) -> bool:
         return True
     if not (math.isfinite(k) and math.isfinite(c)) or k < 0.0 or c < 0.0:
         return False
-    d = _cycles(delay_cycles)
-    if k == 0.0:
-        p = [1.0, -1.0] + [0.0] * d                  # z^(d+1) - z^d + c
-        p[-1] += c
-    else:
-        p = pd_polynomial(k, c, d).tolist()
-    return schur_stable(p, 1.0 - UNIT_CIRCLE_TOLERANCE)
+    return schur_stable(loop_polynomial(k, c, delay_cycles).tolist(),
+                        1.0 - UNIT_CIRCLE_TOLERANCE)
 
 
 def schur_stable(coefficients: list[float], radius: float = 1.0) -> bool:

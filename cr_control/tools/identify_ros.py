@@ -27,9 +27,8 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import pinocchio as pin
 
-from cr_control.core import topics
+from cr_control.core import so3, topics
 
 #: Targets are sent this often (s): well inside any target_timeout.
 TARGET_PERIOD_S = 0.01
@@ -43,9 +42,8 @@ POSE_REACHED_DEG = 15.0
 
 def orientation_error_deg(R: np.ndarray, quaternion_wxyz) -> float:
     """The angle (degrees) between the rotation R and the unit quaternion [w, x, y, z]."""
-    w, x, y, z = map(float, quaternion_wxyz)
-    R_target = pin.Quaternion(w, x, y, z).normalized().matrix()
-    return float(np.degrees(np.linalg.norm(pin.log3(R_target.T @ R))))
+    q = np.asarray(quaternion_wxyz, dtype=float)
+    return float(np.degrees(np.linalg.norm(so3.orientation_error(q / np.linalg.norm(q), R))))
 
 
 class RobotPoses:
