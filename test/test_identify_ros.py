@@ -26,9 +26,13 @@ from cr_control.core import ros_yaml
 pytestmark = [pytest.mark.ros, needs_erd]
 
 
-#: The controller in free space as the tool asks: no guarded approach, no contact force.
+#: The controller in free space as the tool asks: no guarded approach, no contact force; its
+#: targets go stale after 10 s, not 0.5 s: the tool streams them by its own clock while a
+#: lockstep plant runs as fast as the controller answers, so a tool descheduled for 0.4 s on a
+#: loaded machine let them go stale mid-pose (the arm then holds, and the pose is missed).
 FREE_SPACE = ("-p", "adaptive_impedance.approach_speed=0.0",
-              "-p", "adaptive_impedance.desired_force=[0.0,0.0,0.0]")
+              "-p", "adaptive_impedance.desired_force=[0.0,0.0,0.0]",
+              "-p", "adaptive_impedance.target_timeout=10.0")
 
 
 @contextmanager

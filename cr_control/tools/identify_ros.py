@@ -27,8 +27,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pinocchio as pin
 
-from cr_control.core import so3, topics
+from cr_control.core import topics
 
 #: Targets are sent this often (s): well inside any target_timeout.
 TARGET_PERIOD_S = 0.01
@@ -41,9 +42,13 @@ POSE_REACHED_DEG = 15.0
 
 
 def orientation_error_deg(R: np.ndarray, quaternion_wxyz) -> float:
-    """The angle (degrees) between the rotation R and the unit quaternion [w, x, y, z]."""
-    q = np.asarray(quaternion_wxyz, dtype=float)
-    return float(np.degrees(np.linalg.norm(so3.orientation_error(q / np.linalg.norm(q), R))))
+    """The angle (degrees) between the rotation R and the unit quaternion [w, x, y, z]:
+    |log(R_target^T R)|. Pinocchio's, not the controllers' compiled ``so3`` kernel: its first
+    call from Python compiles for seconds, between two poses, while the controller's target
+    timeout runs."""
+    w, x, y, z = map(float, quaternion_wxyz)
+    R_target = pin.Quaternion(w, x, y, z).normalized().matrix()
+    return float(np.degrees(np.linalg.norm(pin.log3(R_target.T @ R))))
 
 
 class RobotPoses:
