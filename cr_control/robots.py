@@ -407,6 +407,7 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
               "force_ramp_time": FORCE_RAMP_TIME, "max_target_force": MAX_TARGET_FORCE,
               "control_period": 1.0 / r.rate_hz, "command_delay_cycles": r.command_delay_cycles,
               "tolerated_delay_cycles": DELAY_MARGIN_CYCLES.get(r.name, {}).get(scheme, 0),
+              "contact_stiffness": TABLE_STIFFNESS,
               **controller_wrench(r), **APPROACH, "approach_speed": r.approach_speed}
     if scheme in ("impedance", "fuzzy_unidirectional"):
         values.update(f_dm=WIPE_FORCE, surface="plane", surface_normal=[0.0, 0.0, 1.0],

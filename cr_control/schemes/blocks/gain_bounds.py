@@ -78,6 +78,12 @@ PARAMETERS = [
           "gain margin of 2; the controller warns at start when the round trip it measures "
           "is longer than the delay its gains tolerate.", "integer", read_only=True,
           bound=1000),
+    Param("contact_stiffness", 0.0, "The stiffest surface the task presses on (N/m): the "
+          "gains whose loop closes through the contact (the normal impedance's k_m, d_m, m_m; "
+          "the fuzzy law's lambda and d_med; the force admittance's mass and damping) keep its "
+          "damping ratio at least 0.15 there (docs/safety.md, 'Gains a sampled, delayed loop "
+          "takes'). The robot profiles: their table's 5000 N/m; 0 = not judged.",
+          "nonnegative", read_only=True, bound=1e9),
     Param("tolerated_delay_cycles", 0, "The largest delay (periods: the driver's and the "
           "answers' lateness together) these gains tolerate: the controller warns once at start "
           "when the round trip it measures in real time goes beyond it. The robot profiles set "
@@ -476,17 +482,84 @@ LAW_RULES = (
             lambda v, T, M: (0.0, float(v["force_admittance_damping"]) * T
                              / float(v["force_admittance_mass"]))),
 )
+#: The least damping ratio of a loop that closes through the contact, on a surface of
+#: ``contact_stiffness`` K_c: zeta = d / (2 sqrt(m k)) of m x'' + d x' + k x (a step of the
+#: force target then overshoots by at most 62 %). The profiles' defaults: 0.19 (the chapter 5
+#: impedance on the Panda and the UR5), 0.35 (the chapter 3 force admittance). Measured below
+#: it: k_m 8050 N/m (0.12) pressed 22 N, m_m 1000 kg (0.007) rang at 26 N.
+CONTACT_DAMPING_RATIO = 0.15
+
+
+@dataclass(frozen=True)
+class ContactRule:
+    """A loop a law's gains close through the contact: ``loop(values, K_c)`` gives its mass,
+    damping and stiffness (m, d, k) on a surface of stiffness K_c, or None where the law has
+    no such loop; ``names`` are the parameters it reads."""
+
+    what: str
+    names: tuple[str, ...]
+    loop: object
+
+
+def _fuzzy_contact(v, K):
+    d = float(v["d_med"])
+    return float(v["m_m"]), d, float(v["lambda"]) * d + K
+
+
+def _admittance_contact(v, K):
+    d = float(v["force_admittance_damping"])
+    return None if d == 0.0 else (float(v["force_admittance_mass"]), d, K)
+
+
+CONTACT_RULES = (
+    ContactRule("the normal impedance (5.6) on the contact, m_m x'' + d_m x' + (k_m + K_c) x",
+                ("k_m", "d_m", "m_m"),
+                lambda v, K: (float(v["m_m"]), gain_size(v["d_m"]), gain_size(v["k_m"]) + K)),
+    ContactRule("the fuzzy impedance at its force target (5.20 gives d_m = d_med, k_m = "
+                "lambda d_med) on the contact", ("lambda", "d_med", "m_m"), _fuzzy_contact),
+    ContactRule("the force admittance on the contact, m_a delta'' + d_a delta' + K_c delta",
+                ("force_admittance_mass", "force_admittance_damping"), _admittance_contact),
+)
+#: The parameters a contact rule reads.
+CONTACT_GAINS = frozenset(name for rule in CONTACT_RULES for name in rule.names)
+
+
+def contact_refusal(values: dict, reading: str | None = None) -> str | None:
+    """Why a loop through the contact (:data:`CONTACT_RULES`) has a damping ratio below
+    CONTACT_DAMPING_RATIO on ``contact_stiffness``, in one line, or None (also where
+    ``contact_stiffness`` is 0 or absent)."""
+    K = float(values.get("contact_stiffness", 0.0))
+    if not K > 0.0:
+        return None
+    for rule in CONTACT_RULES:
+        if not all(name in values for name in rule.names) or (
+                reading is not None and reading not in rule.names):
+            continue
+        loop = rule.loop(values, K)
+        if loop is None:
+            continue
+        m, d, k = loop
+        zeta = d / (2.0 * math.sqrt(m * k)) if m * k > 0.0 else math.inf
+        if not zeta >= CONTACT_DAMPING_RATIO:
+            shown = ", ".join(f"{name} {_shown(values[name])}" for name in rule.names)
+            return (f"{shown}: {rule.what} has damping ratio {zeta:.3g} on a surface of "
+                    f"contact_stiffness {K:g} N/m, below {CONTACT_DAMPING_RATIO:g}")
+    return None
+
+
 #: A least size below this fraction of the given one is the roots' round-off at z = 1 (the
 #: loop of a vanishing gain), not a bound.
 LEAST_FRACTION = 1e-3
-#: The parameters a law rule reads.
-LAW_GAINS = frozenset(name for rule in LAW_RULES for name in rule.names)
+#: The parameters a law rule or a contact rule reads.
+LAW_GAINS = frozenset(name for rule in LAW_RULES for name in rule.names) | CONTACT_GAINS | {
+    "contact_stiffness"}
 
 
 def law_refusal(values: dict, period: float, delay_cycles: int, task_inertia: float,
                 reading: str | None = None) -> str | None:
     """Why the laws' gains in ``values`` leave one of their loops (:data:`LAW_RULES`) unstable
-    with the margin, in one line, or None; ``reading``: only the loops that read that gain."""
+    with the margin, or a loop through the contact too little damped (:func:`contact_refusal`),
+    in one line, or None; ``reading``: only the loops that read that gain."""
     for rule in LAW_RULES:
         if not all(name in values for name in rule.names) or (
                 reading is not None and reading not in rule.names):
@@ -498,7 +571,7 @@ def law_refusal(values: dict, period: float, delay_cycles: int, task_inertia: fl
             return (f"{shown}: {rule.what} is not stable with gain margin {GAIN_MARGIN:g} at "
                     f"{delay} cycles of delay (period {period * 1e3:g} ms; normalised stiffness "
                     f"{k:.3g}, damping {c:.3g})")
-    return None
+    return contact_refusal(values, reading)
 
 
 def _shown(value) -> str:
@@ -585,8 +658,15 @@ def law_parameters(specs: list[Param], values: dict, period: float, delay_cycles
                 f"defaults (period {period * 1e3:g} ms, stable at "
                 f"{DELAY_FACTOR * int(delay_cycles)} cycles of delay with gain margin "
                 f"{GAIN_MARGIN:g}; judged with the gains in force on a change)")
+        if p.name in CONTACT_GAINS and float(values.get("contact_stiffness", 0.0)) > 0.0:
+            text += (f"; and its loop through the contact kept at a damping ratio of at least "
+                     f"{CONTACT_DAMPING_RATIO:g} on contact_stiffness")
         if least > 0.0:
             text += f"; at least {least:.3g} with them"
+            if p.kind.startswith("nonneg") and law_refusal(
+                    {**values, p.name: of_size(p, 0.0)}, period, delay_cycles, task_inertia,
+                    p.name) is None:
+                text += ", or 0 (off)"
         default = of_size(p, bound) if gain_size(values[p.name]) > bound else p.default
         out.append(replace(p, bound=bound, default=default, description=text + "."))
     return out
