@@ -151,6 +151,13 @@ SERVO_GAINS = {"ch5": {"m_m": 4.0, "tangential_damping": 2.0 * math.sqrt(4.0 * 3
                "fuzzy_unidirectional": {"d_s": 50.0, "d_med": 150.0, "d_b": 250.0,
                                         "lambda": 0.4},
                "ch3": {"force_admittance_damping": 150.0}}
+#: A profile's own gains beside SERVO_GAINS (profile -> family or scheme -> gains). The xArm
+#: answers at 150 Hz, a cycle late, through a 40 rad/s servo: its contact loop lags more
+#: than the UR5's and the Panda's, and the chapter 3 laws' force admittance at 150 N s/m
+#: rang at ~15 Hz on the 30 kN/m table (peaks 14.8-15.4 N, 175 and 200 N s/m too); 300
+#: halves the loop's crossover (K / d_a): peaks 10.4 N, and on the default table the force
+#: error RMS 0.160 -> 0.142 N (250-500 N s/m peak at 10.2-10.5 N).
+PROFILE_SERVO_GAINS = {"xarm7": {"ch3": {"force_admittance_damping": 300.0}}}
 #: libfranka's joint limits for the Panda's command streams (rate_limiting.h: kMaxJointAcceleration,
 #: kMaxJointJerk): a position or velocity stream beyond them is rejected (a "..._discontinuity"
 #: reflex) unless rate-limited.
@@ -385,14 +392,16 @@ def servo_values(r: Robot) -> dict[str, Any]:
 def outer_loop_values(r: Robot, scheme: str) -> dict[str, Any]:
     """On a position or velocity interface: the admittance outer loop's parameters (the
     command stream kept inside the driver's acceleration and jerk limits) and the laws' gains
-    that keep the admittance well below the servos' bandwidth (SERVO_GAINS); none on effort."""
+    that keep the admittance well below the servos' bandwidth (SERVO_GAINS, and the
+    profile's own PROFILE_SERVO_GAINS); none on effort."""
     if r.command_interface == "effort":
         return {}
-    gains = (SERVO_GAINS["ch5"] if scheme in ("impedance", "fuzzy_unidirectional")
-             else SERVO_GAINS["ch3"])
+    family = "ch5" if scheme in ("impedance", "fuzzy_unidirectional") else "ch3"
+    own = PROFILE_SERVO_GAINS.get(r.name, {})
     return {"command_interface": r.command_interface,
             "command_acceleration_limit": list(r.acceleration_limit),
-            "command_jerk_limit": list(r.jerk_limit), **gains, **SERVO_GAINS.get(scheme, {})}
+            "command_jerk_limit": list(r.jerk_limit), **SERVO_GAINS[family],
+            **SERVO_GAINS.get(scheme, {}), **own.get(family, {}), **own.get(scheme, {})}
 
 
 def controller_values(r: Robot, scheme: str) -> dict[str, Any]:

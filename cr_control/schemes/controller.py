@@ -52,7 +52,7 @@ import numpy as np
 from numba import njit
 
 from cr_control.core.linalg import all_finite
-from cr_control.core.parameters import Bound, Param
+from cr_control.core.parameters import Bound, Param, ParameterError
 from cr_control.core.rate_limited_log import RateLimitedLog
 from cr_control.core.topics import REFERENCE_FIELDS, STATUS_FIELDS
 from cr_control.schemes.command_gate import (
@@ -63,6 +63,33 @@ from cr_control.schemes.command_gate import (
     STOP_LATE,
     CommandGate,
 )
+
+#: ``max_dt``'s default (s): 5 periods of a 1 kHz driver, 2.5 of a 500 Hz one.
+MAX_DT = 0.005
+#: Where a controller declares its ``control_period`` T, max_dt's default is at least this
+#: many periods: every regular state is integrated whole, and one late by a period too.
+MAX_DT_PERIODS = 2.0
+
+
+def max_dt_default(period: float | None) -> float:
+    """max_dt's default (s) for a driver of ``period`` (s; None: not declared):
+    max(MAX_DT, MAX_DT_PERIODS T)."""
+    return MAX_DT if not period or period <= 0.0 else max(MAX_DT, MAX_DT_PERIODS * period)
+
+
+def max_dt_refusal(values: dict[str, Any]) -> str | None:
+    """Why ``max_dt`` is refused beside ``control_period`` (one line), or None: shorter than
+    the period, every cycle would be integrated short (the law's internal states, and
+    behind a position or velocity interface its virtual arm, would run slower than the
+    stamps its reference follows)."""
+    period = values.get("control_period")
+    if period is None or "max_dt" not in values or float(values["max_dt"]) >= float(period):
+        return None
+    return (f"max_dt {float(values['max_dt']):g} s is shorter than control_period "
+            f"{float(period):g} s: every cycle would be integrated short, the law's states "
+            f"falling behind the stamps its reference follows (default: "
+            f"{max_dt_default(float(period)):.4g} s)")
+
 
 #: Parameters of every controller node.
 COMMON_PARAMETERS = [
@@ -83,7 +110,7 @@ COMMON_PARAMETERS = [
     Param("max_joint_velocity", 100.0, "States whose joint velocities have a Euclidean norm "
           "above this (rad/s or m/s) are absurd: held like NaN.", "positive", bound=1000.0),
     # 1 s: a law integrated over a longer step than that is no longer a 1 kHz control law.
-    Param("max_dt", 0.005, "Longest integration step (s) of the control law's internal "
+    Param("max_dt", MAX_DT, "Longest integration step (s) of the control law's internal "
           "states; longer intervals between states are integrated as this.", "positive",
           bound=1.0),
     # 10 s: a gap beyond it is a restart whatever this says.
@@ -288,6 +315,9 @@ class Controller(ABC):
 
     def __init__(self, values: dict[str, Any]):
         self.values = dict(values)
+        why = max_dt_refusal(self.values)
+        if why is not None:
+            raise ParameterError(why)
         self.n_joints = len(self.values["joint_names"])
         #: Joints whose states the law reads, in the order of q and q' given to compute().
         self.state_joint_names = self.read_joint_names()
@@ -368,6 +398,9 @@ class Controller(ABC):
         """Why changing ``name`` to ``value`` is refused with the other values in force
         (:meth:`check_values`), or None; the node asks before rclpy stores a change, so a
         refused value never reaches the law and the old one stays in force."""
+        why = max_dt_refusal({**self.values, name: value})
+        if why is not None:
+            return why
         try:
             self.check_values({**self.values, name: value})
         except ValueError as exc:

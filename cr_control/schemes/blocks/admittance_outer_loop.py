@@ -24,7 +24,11 @@ Each cycle (period T, the measured joints q_m, the measured wrench):
    integrated with classical RK4, tau and f held (as an effort arm holds a command). Law and
    virtual arm run at ``virtual_rate_hz`` at least: a longer period T is split into k =
    ceil(T rate) equal steps, the law stepped at each (the measured wrench held), so that a
-   law tuned for 1 kHz is not run at a driver's 500 or 150 Hz.
+   law tuned for 1 kHz is not run at a driver's 500 or 150 Hz. T is the time since the last
+   state, at most ``max_dt``, which is at least the driver's period (by default 2 periods
+   where that is longer than 5 ms): the law's reference follows the stamps, so a virtual
+   arm integrated over less than the period falls behind it every cycle (the xArm's 6.7 ms
+   cut to 5 ms left the chapter 3 laws' circle 10 mm small).
    While the law holds the arm still for its start-up zeroing (the wrist sensor's bias still
    unknown), the virtual arm is held still too.
 3. **The command**, anchored to the measured joints every cycle: the pose error between the
@@ -275,9 +279,12 @@ class AdmittanceOuterLoop(Controller):
         self._virtual_rate = float(self.values["virtual_rate_hz"])
 
     def check_parameter(self, name: str, value: Any) -> str | None:
+        """The law's check where the law has the parameter, and the loop's own (``max_dt``
+        beside the driver's period: the law sees the split one)."""
+        why = None
         if name in self.law.values and name not in VIRTUAL_ROBOT_SIDE:
-            return self.law.check_parameter(name, value)
-        return super().check_parameter(name, value)
+            why = self.law.check_parameter(name, value)
+        return why or super().check_parameter(name, value)
 
     def set_parameter(self, name: str, value: Any) -> None:
         if name in self.law.values and name not in VIRTUAL_ROBOT_SIDE:

@@ -75,7 +75,14 @@ from cr_control.schemes.blocks.task_space import (
     status_fields,
     task_model,
 )
-from cr_control.schemes.controller import COMMON_PARAMETERS, Controller, ControlOutput, KernelOutput
+from cr_control.schemes.controller import (
+    COMMON_PARAMETERS,
+    MAX_DT_PERIODS,
+    Controller,
+    ControlOutput,
+    KernelOutput,
+    max_dt_default,
+)
 
 #: joint_names of a task-space scheme: the chain's joints unless given (then their order is
 #: the command order, e.g. a forward_command_controller's ``joints``).
@@ -134,6 +141,21 @@ def max_effort_on(param: Param, model: TaskModel) -> Param:
     return replace(param, default=min(param.default, bound), bound=bound, description=(
         f"{param.description} At most {EFFORT_LIMIT_FACTOR:g}x the URDF's largest <limit "
         "effort> (each joint is clipped at its own limit first)."))
+
+
+def max_dt_on(param: Param, given: dict[str, Any] | None) -> Param:
+    """The common ``max_dt`` at the driver's ``control_period`` T in ``given``: its default
+    max(5 ms, 2 T) (:func:`~cr_control.schemes.controller.max_dt_default`), so that each
+    state of a driver slower than 200 Hz (the xArm's 150 Hz) is integrated whole; the param
+    as it is where that leaves the default alone."""
+    period = (given or {}).get("control_period")
+    default = max_dt_default(None if period is None else float(period))
+    if default == param.default:
+        return param
+    return replace(param, default=default, description=(
+        f"{param.description} Default: {MAX_DT_PERIODS:g} control periods where that is "
+        f"longer than {param.default:g} s; at least control_period (shorter, every cycle "
+        "would be integrated short)."))
 
 
 class TaskSpaceController(Controller):
@@ -202,7 +224,8 @@ class TaskSpaceController(Controller):
         model = task_model(robot, cls.MODEL_FREE)
         thesis = cls.is_thesis_robot(robot)
         own = {"joint_names": JOINT_NAMES, "max_effort": max_effort_on(
-            next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model)}
+            next(p for p in COMMON_PARAMETERS if p.name == "max_effort"), model),
+            "max_dt": max_dt_on(next(p for p in COMMON_PARAMETERS if p.name == "max_dt"), given)}
         common = [own.get(p.name, p) for p in COMMON_PARAMETERS]
         # the gains' bounds at the law's own period and delay (the virtual arm's behind a
         # position or velocity interface)
