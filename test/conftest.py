@@ -76,6 +76,7 @@ STUDIES = {
     "test_robots.py::test_wiping_holds_the_force_on_the_path": 2,
     "test_robots.py::test_wiping_a_stiff_table": 1,
     "test_robots.py::test_wiping_at_three_times_the_drivers_delay": 2,
+    "test_robots.py::test_wiping_through_late_bursts": 4,
     "test_gain_matrix.py::test_a_gain_at_its_accepted_extreme_holds_the_task": 3,
     "test_hostile_targets.py::test_no_target_wrench_sequence_winds_a_law_up": 2,
     "test_hostile_targets.py::test_zero_ft_every_0_2_s_while_pressing_10_n_leaves_the_true_force_alone": 1,

@@ -59,6 +59,53 @@ def test_stalls_of_tens_of_ms_on_a_few_per_cent_of_the_cycles_do_not_stop_it():
     assert gate.late_states == 0 and 1.3 < gate.mean_age < 2.0
 
 
+def late_bursts(fraction: float, seconds: float, seed: int) -> list[tuple[float, int]]:
+    """Stamp steps of a node that falls behind in bursts of 20-70 periods on about
+    ``fraction`` of the cycles (cr_sim.transport_delay's draws: each cycle outside a burst
+    starts one with probability fraction / (45 (1 - fraction))): a node that answers late
+    answers only the newest state, so each burst shows as one state n periods after the last."""
+    rng = np.random.default_rng(seed)
+    p = fraction / (45.0 * (1.0 - fraction))
+    steps, k = [], 0
+    while k < seconds / T:
+        n = int(rng.integers(20, 71)) if rng.random() < p else 1
+        steps.append((n, 0))
+        k += n
+    return steps
+
+
+@pytest.mark.parametrize("fraction", [0.01, 0.043])
+def test_late_bursts_on_a_few_per_cent_of_the_cycles_never_stop_it(fraction):
+    """Bursts of 20-70 ms late on 1 % of the cycles (and 4.3 %: 0.001 bursts per cycle), a
+    minute of them: no state alone beyond LATE_STATE_CYCLES, the average age below 2
+    periods (LATE_MEAN_CYCLES 3): the law goes on commanding, not a stop."""
+    gate = cg.CommandGate(50)
+    stamp, most = 0.0, 0.0
+    gate.stamp(stamp)
+    events = []
+    for periods, run in late_bursts(fraction, 60.0, 0):
+        stamp += periods * T
+        gate.stamp(stamp)
+        events.append(gate.cycle(run))
+        most = max(most, gate.mean_age)
+    print(f"{fraction:.1%} late: the average age at most {most:.2f} periods")
+    assert set(events) == {cg.NONE} and gate.commanding
+    assert gate.late_states == 0 and gate.max_age <= 70.0 + 1e-9 and most < 2.0
+
+
+def test_late_bursts_on_30_per_cent_of_the_cycles_stop_it_once_at_a_time():
+    """Bursts of 20-70 ms on 30 % of the cycles: the average age passes 3 now and then, and
+    each time the law stops once and resumes once, RESUME_CYCLES fresh states at least after
+    the stop; never stop and resume every few cycles (a minute: two such episodes)."""
+    events = decisions(cg.CommandGate(50), late_bursts(0.3, 60.0, 0))
+    happened = [(k, e) for k, e in enumerate(events) if e != cg.NONE]
+    print(happened)
+    assert [e for _, e in happened] == [cg.STOP_LATE, cg.RESUME] * (len(happened) // 2)
+    assert 1 <= len(happened) // 2 <= 3
+    gaps = np.diff([k for k, _ in happened])
+    assert gaps.min() >= cg.RESUME_CYCLES
+
+
 def test_a_wall_clock_stamp_jitter_is_no_lateness():
     """A real-time plant stamps with the wall clock: steps of 0.4-1.6 ms around 1 ms. The
     period estimate settles at the mean step (not the smallest: 0.4 ms would make every

@@ -37,6 +37,19 @@ delay: with it the contact loop rings (one cycle: 0.35-0.58 N RMS on the Panda, 
 the UR5; three: 0.53-1.07 N and 1.0-12.8 N) -- the discrete-time rule asks a normal damping
 of 140-180 N s/m of the chapter 5 laws on the Panda there, and no damping at all holds a
 50 kN/m contact through m_m = 1.2 kg at the UR5's 500 Hz with two cycles of lag.
+
+Through late bursts too (cr_sim.transport_delay: the driver holds the last command for 20-70
+ms, then catches up), on about 1 % of the cycles, at the profile's delay and three times it:
+the same bounds over 20 s runs (seed 10: 6 bursts, 3 of them in the judged half, 0.93 % of
+the Panda's cycles late and 1.02 % of the UR5's: force error RMS 0.04-0.17 N, radial at
+most 0.35 mm, joints at most 0.17 of their limits). Measured (offline, 20 s, seeds 1-3 on every
+case, 4-7 on panda and panda_ft too): force error RMS 0.03-0.24 N, radial 0.01-0.36 mm,
+joints at most 0.17 of their velocity limits, no command at its effort limit, no reflex, no
+give-up but one: a burst in the start check's first second (test_a_late_burst_during_the_start_check,
+open). A burst holds a torque that answered the arm as it was: the tool presses into the
+table or lifts (up to ~2 N off within 70 ms), and from the catch-up the law's own contact loop
+takes it back in ~0.2 s; the adaptive laws fare as the fixed impedance does, so nothing they
+integrate meanwhile winds them up (docs/safety.md, 'Late bursts').
 """
 
 import numpy as np
@@ -44,7 +57,7 @@ import pytest
 from ros_probe import next_domain
 
 from cr_control import robots
-from cr_control.experiments.wiping import Case, run_case
+from cr_control.experiments.wiping import Case, late_bursts, run_case
 from cr_control.models.urdf import load_chain
 from cr_control.offline import robot_period, run_scheme
 from cr_control.schemes.blocks.wrist_sensor import ZERO_START_WINDOW_S
@@ -61,6 +74,16 @@ EFFORT_CASES = [(r, s) for r, s in CASES
 #: (the transport is the scheme's and the rate's, not the arm's: each robot with every scheme
 #: would run the same messages twice).
 LOCKSTEP_CASES = [(("panda", "ur5")[i % 2], s) for i, s in enumerate(robots.TASK_SPACE_SCHEMES)]
+#: Late bursts (module docstring): one scheme of each family per robot at three times its
+#: delay first (the fast tier runs these: test/conftest.py STUDIES), then every other scheme and
+#: delay factor.
+BURST_FIRST = [("panda", "adaptive_impedance", 3), ("panda_ft", "nn_adaptive_impedance", 3),
+               ("ur5", "fuzzy_unidirectional", 3), ("ur5_ft", "robust_adaptive_impedance", 3)]
+BURST_CASES = BURST_FIRST + [(r, s, f) for r in PROFILES for s in robots.TASK_SPACE_SCHEMES
+                             for f in (1, 3) if (r, s, f) not in BURST_FIRST]
+#: About 1 % of the cycles late, in bursts of 20-70 ms; the seed puts 6 bursts in a 20 s run,
+#: 3 of them in its judged second half, on both rates (1 kHz and 500 Hz).
+BURST_FRACTION, BURST_SEED, BURST_RUN_S = 0.01, 10, 20.0
 CH5 = ("impedance", "fuzzy_unidirectional")
 
 RADIAL_RMS_M = 2e-3
@@ -152,6 +175,58 @@ def test_wiping_at_three_times_the_drivers_delay(robot, scheme):
     assert values["radial_rms_m"] <= RADIAL_RMS_M
     assert values["joint_speed_max_fraction"] <= 0.5
     assert values["torque_limit_run_cycles"] <= 10
+
+
+@pytest.mark.parametrize("robot,scheme,factor", BURST_CASES,
+                         ids=[f"{r}-{s}-{f}x" for r, s, f in BURST_CASES])
+def test_wiping_through_late_bursts(robot, scheme, factor):
+    """Late answers never integrate into a flail: with bursts of 20-70 ms in which the driver
+    holds the last command on ~1 % of the cycles, at the profile's delay and at three times
+    it, every scheme keeps the bounds above over the judged half of a 20 s run (force error
+    RMS <= 0.3 N, radial <= 2 mm, no joint above half its velocity limit, no command at its
+    effort limit for more than 10 cycles), with no reflex and no give-up."""
+    delay = factor * robots.robot(robot).command_delay_cycles
+    plant = (("command_delay_cycles", delay),) + late_bursts(robot, BURST_FRACTION, BURST_SEED)
+    values, errors = run_case(Case(scheme, robot, duration=BURST_RUN_S, plant=plant))
+    print(f"\n{robot} {scheme} at {delay} cycles, {values['late_bursts']:.0f} late bursts "
+          f"({values['late_fraction'] * 100:.2f} % of the cycles): force error RMS "
+          f"{values['force_err_rms_N']:.3f} N, radial {values['radial_rms_m'] * 1e3:.2f} mm, "
+          f"joints at {values['joint_speed_max_fraction']:.2f} of their limits, "
+          f"{values['torque_limit_run_cycles']:.0f} cycles at a limit")
+    assert values["late_bursts"] == 6 and values["late_bursts_judged"] == 3
+    assert 0.009 <= values["late_fraction"] <= 0.011
+    assert not errors and values["safe_stop_reason"] == 0.0 and values["gave_up"] == 0.0
+    assert values["force_err_rms_N"] <= FORCE_ERR_RMS_N
+    assert values["radial_rms_m"] <= RADIAL_RMS_M
+    assert values["joint_speed_max_fraction"] <= 0.5
+    assert values["torque_limit_run_cycles"] <= 10
+
+
+@pytest.mark.xfail(strict=True, reason="a burst in the start check's first second: the chapter 3 "
+                   "laws' transient at contact (the circle starts at full speed), held and "
+                   "answered at the catch-up, takes the tip 0.153 m/s off its reference at "
+                   "0.27 s (start check 0.15 m/s): the controller gives up for good (force "
+                   "error RMS 9.8 N)")
+def test_a_late_burst_during_the_start_check():
+    """panda_ft, robust_adaptive_impedance at three times its delay, seed 5 (2.2 % of the
+    cycles late; the first burst 48 cycles at 0.205 s). When the guarded approach finds the
+    table (0.092 s) the wiping circle starts at its full speed (r_d' steps from 0 to a w =
+    0.05 m/s along y, 3.93), and the chapter 3 laws' command steps by 3-5 N m on joints 1, 3
+    and 5: joint 5 swings to 0.44 rad/s and the wrist rings for ~0.2 s, the tip at up to 0.10
+    m/s (0.3 rad/s on the Panda's estimated wrench, 0.26-0.32 at the profile's delay). A burst
+    holds one of those commands for 48 ms, and the law's answer at the catch-up moves the tip
+    0.153 m/s off its reference, which the start check (safe_stop.start_check: a gravity
+    mismatch or a grossly wrong model) takes for a wrong model. Open: the path's start (a
+    velocity step at contact) and the start check's reading of a held command."""
+    r = "panda_ft"
+    plant = (("command_delay_cycles", 3 * robots.robot(r).command_delay_cycles),
+             *late_bursts(r, BURST_FRACTION, 5))
+    values, errors = run_case(Case("robust_adaptive_impedance", r, duration=8.0, plant=plant))
+    print(f"\ngave up at {values['gave_up_at_s']:.3f} s: {errors}; force error RMS "
+          f"{values['force_err_rms_N']:.3f} N")
+    assert not errors and values["gave_up"] == 0.0 and values["safe_stop_reason"] == 0.0
+    assert values["force_err_rms_N"] <= FORCE_ERR_RMS_N
+    assert values["radial_rms_m"] <= RADIAL_RMS_M
 
 
 def test_panda_is_redundant_and_the_ur5_is_not():

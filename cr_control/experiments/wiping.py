@@ -22,7 +22,11 @@ gravity setting the opposite of the robot's (a mismatch). Its figures (:func:`wi
 - the start check: whether and when the controller gave up, and the largest joint speed
   (fraction of its URDF velocity limit) with the joint that reached it (1-based);
 - the longest run of cycles in which a joint's command sat at its URDF effort limit, and the
-  plant's safe stop (its reason, 0: none; the time it began).
+  plant's safe stop (its reason, 0: none; the time it began);
+- the driver's late bursts (:mod:`cr_sim.transport_delay`): how many began, how many of them
+  in the judged second half, and the fraction of the cycles they held the last command.
+  :func:`late_bursts` gives the plant overrides of bursts lasting 20-70 ms on a fraction of
+  the cycles (``--late-fraction``).
 
 ``python -m cr_control.experiments.wiping`` prints the table of every scheme on every profile
 (default and stiff table) and the mismatch cases.
@@ -42,6 +46,20 @@ from cr_control import offline, robots
 
 #: The stiff table: this many times the default contact stiffness.
 STIFF_FACTOR = 10.0
+#: Late bursts last this long (s), drawn uniformly (a Python controller on a loaded machine).
+LATE_BURST_S = (0.020, 0.070)
+
+
+def late_bursts(robot: str, fraction: float, seed: int) -> tuple[tuple[str, Any], ...]:
+    """The plant node's overrides for late bursts of LATE_BURST_S on about ``fraction`` of
+    ``robot``'s cycles: in its cycles (20-70 at 1 kHz, 10-35 at 500 Hz), each cycle outside
+    a burst starting one with probability p = fraction / (L (1 - fraction)), L the mean
+    length (the expected share of cycles in a burst is p L / (1 + p L) = ``fraction``)."""
+    rate = robots.robot(robot).rate_hz
+    low, high = (max(1, round(s * rate)) for s in LATE_BURST_S)
+    p = fraction / (0.5 * (low + high) * (1.0 - fraction))
+    return (("late_burst_probability", p), ("late_burst_min_cycles", low),
+            ("late_burst_max_cycles", high), ("late_burst_seed", int(seed)))
 
 
 @dataclass(frozen=True)
@@ -150,10 +168,22 @@ def run_case(case: Case) -> tuple[dict[str, float], list[str]]:
     period = offline.robot_period(case.robot)
     limiter = (offline.build.node_limiter(plant, case.scheme, case.robot, p, period)
                if case.node_limits else None)
-    run = offline.run(controller, plant, case.duration, period, watch, limiter=limiter,
-                      delay=offline.build.node_delay(case.scheme, case.robot, p))
+    delay = offline.build.node_delay(case.scheme, case.robot, p)
+    bursts_at: list[float] = []
+
+    def count(k: int, t: float, ctl: Any, plant_: Any) -> None:
+        watch(k, t, ctl, plant_)
+        if delay.bursts > len(bursts_at):        # the burst drawn at the step before
+            bursts_at.append(t)
+
+    run = offline.run(controller, plant, case.duration, period, count, limiter=limiter,
+                      delay=delay)
     values = wiping_metrics(run, controller)
     values["gave_up_at_s"] = gave_up_at[0] if gave_up_at else math.nan
+    half = run.time[0] + 0.5 * (run.time[-1] - run.time[0])
+    values["late_bursts"] = float(delay.bursts)
+    values["late_bursts_judged"] = float(sum(t >= half for t in bursts_at))
+    values["late_fraction"] = delay.late_cycles / len(run.time)
     return values, errors
 
 
@@ -166,7 +196,8 @@ COLUMNS = [("force_err_mean_N", "F err mean N", 1.0, 3), ("force_err_rms_N", "F 
            ("joint_speed_max_fraction", "max q'/limit", 1.0, 2),
            ("joint_speed_worst", "joint", 1.0, 0),
            ("torque_limit_run_cycles", "at limit cycles", 1.0, 0),
-           ("safe_stop_at_s", "reflex s", 1.0, 2)]
+           ("safe_stop_at_s", "reflex s", 1.0, 2), ("late_bursts", "late bursts", 1.0, 0),
+           ("late_fraction", "late %", 100.0, 1)]
 
 
 def _cell(value: float, scale: float, decimals: int) -> str:
@@ -200,13 +231,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--delay", type=int, default=None,
                    help="the driver's transport delay (cycles; the plant's command_delay_cycles; "
                         "default: the profile's)")
+    p.add_argument("--late-fraction", type=float, default=0.0,
+                   help="late bursts of 20-70 ms on about this fraction of the cycles "
+                        "(late_bursts; default 0: none)")
+    p.add_argument("--seed", type=int, default=0, help="the late bursts' seed")
     p.add_argument("--node-limits", action="store_true",
                    help="with the plant node's effort and torque-rate limits")
     args = p.parse_args(argv)
     try:
+        if not 0.0 <= args.late_fraction < 1.0:
+            raise ValueError(f"--late-fraction {args.late_fraction}: 0 <= fraction < 1")
         cases = [Case(s, r, tb, args.clearance, args.model_scale, duration=args.duration,
                       plant=(() if args.delay is None else
-                             (("command_delay_cycles", args.delay),)),
+                             (("command_delay_cycles", args.delay),))
+                      + (late_bursts(r, args.late_fraction, args.seed)
+                         if args.late_fraction > 0.0 else ()),
                       node_limits=args.node_limits)
                  for s in args.schemes.split(",") for r in args.robots.split(",")
                  for tb in args.tables.split(",")]
