@@ -193,3 +193,51 @@ def test_the_laws_gains_by_the_same_rule():
     assert why is not None and "m_m 0.3" in why and "\n" not in why
     thesis = make_controller("robust_adaptive_impedance", {})
     assert thesis.check_parameter("K_s", np.diag([1e4, 1e4])) is None
+
+
+def test_the_loops_through_the_contact_keep_their_damping_ratio():
+    """On the declared contact_stiffness (the profiles' 5 kN/m table) a change that leaves a
+    loop through the contact with a damping ratio below 0.15 is refused in one line naming the
+    loop and the ratio, and the old value stays; the same change beside more damping is taken
+    (judged with the gains in force); the thesis's arm (no contact_stiffness) is not judged."""
+    zeta = gain_bounds.CONTACT_DAMPING_RATIO
+    r = robots.robot("panda")
+    values = robots.controller_values(r, "impedance")
+    assert values["contact_stiffness"] == robots.TABLE_STIFFNESS
+    ctl = make_controller("impedance", values)
+    m, d, k = ctl.values["m_m"], ctl.values["d_m"], ctl.values["k_m"]
+    K = robots.TABLE_STIFFNESS
+    assert d / (2 * math.sqrt(m * (k + K))) >= zeta                     # the defaults: 0.19
+    most_k = d * d / (4 * zeta * zeta * m) - K                           # 3333 N/m
+    why = ctl.check_parameter("k_m", 1.01 * most_k)
+    assert why is not None and "\n" not in why
+    assert "the normal impedance (5.6) on the contact" in why and "below 0.15" in why
+    assert ctl.check_parameter("k_m", 0.99 * most_k) is None
+    why = ctl.check_parameter("m_m", 1000.0)
+    assert why is not None and "damping ratio 0.00667" in why
+    assert ctl.values["m_m"] == m                                        # refused: unchanged
+    ctl.set_parameter("d_m", 100.0)                                      # more damping ...
+    assert ctl.check_parameter("k_m", 1.01 * most_k) is None             # ... takes it
+    fuzzy = make_controller("fuzzy_unidirectional",
+                            robots.controller_values(r, "fuzzy_unidirectional"))
+    assert "the fuzzy impedance at its force target" in fuzzy.check_parameter("lambda", 256.0)
+    ch3 = make_controller("adaptive_impedance", robots.controller_values(r, "adaptive_impedance"))
+    assert "the force admittance on the contact" in ch3.check_parameter(
+        "force_admittance_mass", 1000.0)
+    assert ch3.check_parameter("force_admittance_damping", 0.0) is None  # off: no such loop
+    thesis = make_controller("impedance", {})
+    assert thesis.values["contact_stiffness"] == 0.0
+    assert thesis.check_parameter("m_m", 1000.0) is None
+
+
+def test_the_compensator_is_judged_through_the_arm():
+    """The robust term's D (3.40) drives r_eq'' (3.50) through the arm: bounded at 3 x the
+    delay with gain margin 2 (c = |D| T < 0.445 / 2 at 3 cycles: 222 on the Panda's 1 ms, 111
+    on the UR5's 2 ms), not by 1/T."""
+    for robot, bound in (("panda", 222.0), ("ur5", 111.0), ("panda_ft", 222.0)):
+        values = robots.controller_values(robots.robot(robot), "robust_adaptive_impedance")
+        spec = {p.name: p for p in controller_class("robust_adaptive_impedance").parameters(values)}
+        assert spec["D"].bound == pytest.approx(bound, rel=0.01)
+        period = values["control_period"]
+        assert dg.damping_limit(3) / gain_bounds.GAIN_MARGIN / period == pytest.approx(
+            bound, rel=0.01)

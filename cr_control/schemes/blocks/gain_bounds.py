@@ -475,8 +475,8 @@ LAW_RULES = (
             lambda v, T, M: (gain_size(v["B_m"]) * T * T, gain_size(v["A_m"]) * T)),
     LawRule("the sliding gain K_s s (3.48) through the task's lightest inertia", ("K_s",),
             "plant", lambda v, T, M: (0.0, gain_size(v["K_s"]) * T / M)),
-    LawRule("the compensator z' = D z + ... (3.40), stepped each period", ("D",), "internal",
-            lambda v, T, M: (0.0, gain_size(v["D"]) * T)),
+    LawRule("the compensator z' = D z + ... (3.40), whose K_2 z' drives r_eq'' (3.50) through "
+            "the arm", ("D",), "plant", lambda v, T, M: (0.0, gain_size(v["D"]) * T)),
     LawRule("the force admittance m_a delta'' + d_a delta' = f_d - f through the arm",
             ("force_admittance_mass", "force_admittance_damping"), "plant",
             lambda v, T, M: (0.0, float(v["force_admittance_damping"]) * T
