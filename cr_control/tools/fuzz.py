@@ -1,6 +1,6 @@
 """cr_fuzz: hostile and careless input against the tools and running real-time sessions.
 
-Three suites (``--suite``), each printing a table:
+Seven suites (``--suite``), each printing a table:
 
 - ``inputs``: robot descriptions, files and command lines (:mod:`cr_control.tools.fuzz_inputs`):
   each tool run as a process of its own under resource limits; no ROS session. CI runs
@@ -14,6 +14,17 @@ Three suites (``--suite``), each printing a table:
   pressing), ~/zero_ft called over and over while pressing, and a node with a silent
   /joint_states publisher and a /joint_commands publisher on the domain before the session
   starts that then commands 1e308 N m.
+- ``delay`` (:mod:`~cr_control.tools.fuzz_delay`): panda_ft behind a slow driver, the
+  session's plant given a transport delay of 3 cycles and late bursts (~1 % and ~5 % of the
+  cycles late); no joint above half its velocity limit, the force within the baseline's.
+- ``position`` (:mod:`~cr_control.tools.fuzz_position`): a UR5 taking joint positions
+  (``ur5_position``; ``--robot xarm7`` or ``panda_position`` too): absurd gains set live,
+  far and NaN pose targets, a 1e12 N wrench, the controller's process stopped for 0.5 s;
+  every commanded position finite and within one period of its velocity limit of the last.
+- ``gains`` and ``gains_impedance`` (:mod:`~cr_control.tools.fuzz_gains`): the Panda wiping
+  with adaptive_impedance and impedance, a gain set live to its accepted extreme (found by
+  bisection through the controller's parameter service); no reflex, every joint below its
+  velocity limit, the force at most 1.5 x the 10 N target.
 
 Each session case runs a recorded real-time session (plant, controller, recorder:
 ``cr_session``'s processes on a domain of their own) while this process's own node, which
@@ -30,19 +41,32 @@ happened, one row per case:
   last timing window's share of fresh commands at least RESUMED_SHARE of the baseline
   run's median window: a stopped controller gives ~0 %, a loaded 2-core machine 55-95 %
   window to window; how well the loop runs is the miss column's);
+- q'/lim: the largest joint speed after the first second as a share of the joint's URDF
+  velocity limit (robot plants);
 - miss: the longest run of plant ticks without a new command (ms at 1 kHz);
+- jump: on a position interface, the largest step between consecutive commanded positions,
+  in control periods of the joint's velocity limit (at most 1);
 - verdict: ``survived`` when alive, finite, no safe stop, resumed, max |q'| within the
   suite's baseline run's (same scheme and robot, nothing sent) times SPEED_MARGIN plus
   SPEED_FLOOR (not for a target that moves the arm on purpose), for the force-judged
   cases max |f| within the baseline's times FORCE_MARGIN plus FORCE_FLOOR, and, for the
-  cases held to it, the miss within the baseline's plus the case's margin; else
-  ``FAILED`` with the first reason.
+  cases held to it, the miss within the baseline's plus the case's margin; and, where
+  the case says (:class:`~cr_control.tools.fuzz_case.Case`), against the robot's own
+  limits: q'/lim, max |f| and the commanded positions (finite, jump at most 1); else
+  ``FAILED`` with the first reason (a safe stop with the plant's reason and by when).
+
+A case may change its session rather than send a message: ``Case.session_args`` are
+cr_session's ``-p NODE.PARAM=VALUE`` overrides (the delay suite's plant parameters). A
+suite (:class:`~cr_control.tools.fuzz_case.Suite`) names its baseline, robot and scheme
+(``--robot`` and, where the suite names none, ``--scheme`` choose). The row's "seen" says
+when the input began (s after the first state) and what the case noted.
 
 Each session suite's baseline runs first. Exit status 0 if every case survived (or was
 refused, for the inputs), 1 if one did not, 2 on a usage error.
 
     cr_fuzz                       # every case, adaptive_impedance, 8 s sessions
     cr_fuzz --suite inputs        # the tools alone, ~1 min
+    cr_fuzz --suite position --robot xarm7
     cr_fuzz --cases second_commander,huge_joint_state --duration 6
 """
 
@@ -67,7 +91,7 @@ import numpy as np
 from cr_control.core.ros_env import claim_free_domain, isolated_env
 from cr_control.robots import ROBOTS, home_tip
 from cr_control.tools import fuzz_delay, fuzz_gains, fuzz_position
-from cr_control.tools.fuzz_case import Case, Suite
+from cr_control.tools.fuzz_case import Case, Suite, nothing
 
 #: A case's max |q'| may exceed the baseline run's by this factor plus SPEED_FLOOR.
 SPEED_MARGIN = 1.2
@@ -439,6 +463,11 @@ class Row:
     interface: str = ""
     commands_finite: bool = True
     command_jump: float = math.nan
+    #: Why and by when the safe stop engaged ("watchdog, by 1.0 s": the plant's reason and the
+    #: end of the first timing window that reported it, from the first state).
+    safe_stop_why: str = ""
+    #: The first recorded state's stamp (s; real time: the wall clock's).
+    first_state: float = math.nan
 
 
 def commanding_at_end(fresh: np.ndarray, stopped: np.ndarray, reference: float,
@@ -500,6 +529,15 @@ def judge_robot(row: Row, session, robot: str | None) -> None:
             commands.position, limits_of(robot, commands.names), 1.0 / ROBOTS[robot].rate_hz)
 
 
+def safe_stop_why(timing: dict[str, np.ndarray], start: float) -> str:
+    """The plant's reason for its first safe stop and by when (s from ``start``)."""
+    from cr_sim.loop_stats import SAFE_STOP_REASONS
+
+    first = int(np.flatnonzero(timing["safe_stop"] > 0)[0])
+    reason = timing.get("safe_stop_reason", np.zeros(first + 1))[first]
+    return f"{SAFE_STOP_REASONS.get(int(reason), 'unknown')}, by {timing['stamp'][first] - start:.1f} s"
+
+
 def judge(recording: Path | None, case: str, alive: bool, note: str,
           reference: float | None = None, robot: str | None = None) -> Row:
     """The row of a case from its recording (None: nothing recorded); ``reference``: the
@@ -548,6 +586,10 @@ def judge(recording: Path | None, case: str, alive: bool, note: str,
             else math.nan
     row = Row(case, alive, finite, speed, safe_stop, resumed, float(np.nanmax(miss)), note,
               seen=", ".join(counted), fresh_median=median, max_force=force)
+    if states is not None and len(states.time):
+        row.first_state = float(states.time[0])
+    if safe_stop:
+        row.safe_stop_why = safe_stop_why(timing, row.first_state)
     judge_robot(row, session, robot)
     return row
 
@@ -556,7 +598,8 @@ def verdict(row: Row, case: Case, baseline: Row | None) -> str:
     """``survived`` or ``FAILED: <first reason>``."""
     reasons = [text for bad, text in (
         (not row.alive, "a process died"), (not row.finite, "non-finite state"),
-        (row.safe_stop, "safe stop"), (not row.resumed, "controller not commanding at the end"))
+        (row.safe_stop, "safe stop" + (f" ({row.safe_stop_why})" if row.safe_stop_why else "")),
+        (not row.resumed, "controller not commanding at the end"))
         if bad]
     if baseline is not None and case.name != baseline.case:
         allowed = baseline.max_speed * SPEED_MARGIN + SPEED_FLOOR
@@ -627,11 +670,13 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
 
     worker = threading.Thread(target=run, name=f"session-{case.name}")
     note = ""
+    sent: float | None = None          # when the case began sending (wall clock)
     try:
         worker.start()
         started = intruder.spin_until(lambda: intruder.timing_messages >= 2 and intruder.joint_names,
                                       60.0 + args.duration)
         if started and worker.is_alive():
+            sent = time.time()
             try:
                 case.send(intruder)
             except Exception as exc:  # noqa: BLE001 - the row says what the fuzz itself could not do
@@ -646,6 +691,8 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
         domain.release()
     row = judge(session.mcap, case.name, not failure, failure[0] if failure else note, reference,
                 robot=cfg.robot)
+    if sent is not None and case.send is not nothing and math.isfinite(row.first_state):
+        intruder.notes.insert(0, f"sent at {sent - row.first_state:.1f} s")
     answers = ""
     if intruder.replies:
         accepted = sum(ok for ok, _ in intruder.replies)
@@ -661,12 +708,13 @@ def format_rows(rows: list[Row], cases: dict[str, Case]) -> str:
     """The suite's table (q'/lim: the largest joint speed's share of its velocity limit;
     jump: the largest commanded position step in periods of the velocity limit), then
     what each case sent and what was seen."""
-    head = f"{'case':27} {'alive':5} {'finite':6} {'max|q_dot|':>10} {'q_dot/lim':>9} " \
+    width = max([27] + [len(r.case) for r in rows])
+    head = f"{'case':{width}} {'alive':5} {'finite':6} {'max|q_dot|':>10} {'q_dot/lim':>9} " \
            f"{'max|f| N':>8} {'safe stop':9} {'resumed':7} {'miss ms':>7} {'jump':>6}  verdict"
     lines = [head, "-" * len(head)]
     for r in rows:
         yes = {True: "yes", False: "no"}
-        lines.append(f"{r.case:27} {yes[r.alive]:5} {yes[r.finite]:6} {r.max_speed:10.3f} "
+        lines.append(f"{r.case:{width}} {yes[r.alive]:5} {yes[r.finite]:6} {r.max_speed:10.3f} "
                      f"{r.speed_share:9.2f} {r.max_force:8.1f} {yes[r.safe_stop]:9} "
                      f"{yes[r.resumed]:7} {r.miss_ms:7.0f} {r.command_jump:6.2f}  {r.verdict}"
                      + (f"  ({r.note})" if r.note else ""))
