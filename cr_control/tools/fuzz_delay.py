@@ -8,7 +8,8 @@ contact force within the suite's baseline's margin (FORCE_MARGIN x + FORCE_FLOOR
 
 A late burst: the driver keeps applying the command it applied last for 20-70 cycles, then
 catches up. The burst draws are seeded, so every run has the same bursts at the same plant
-steps (:func:`burst_draws` counts them); BURSTS_SEED's put them 2.8-5.4 s into the run.
+steps (:func:`burst_draws` counts them); BURSTS_SEED's begin 3.6 s and 5.3 s into the plant's
+run at ~1 %, and from 2.8 s on at ~5 %: after the tool has settled on the table.
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ def _delay_case(name: str, what: str, send=nothing, **plant: object) -> Case:
 
 
 CASES = [
-    Case("delay_baseline", "nothing, on panda_ft (the run the delay cases are judged against)",
+    Case("delay_baseline", "nothing (the run the delay cases are judged against)",
          nothing, suite="delay"),
     _delay_case("delay_3_cycles", f"the driver applies every command {DELAY_CYCLES} cycles late "
                 "(plant command_delay_cycles; the profile's 1)", command_delay_cycles=DELAY_CYCLES),

@@ -121,8 +121,8 @@ def _gain_case(suite: str, name: str, changes: list[tuple[str, str]]) -> Case:
 
 CASES = [
     case
-    for suite, (baseline, robot, scheme) in SUITES.items()
-    for case in [Case(baseline, f"nothing, {scheme} on {robot} (the run the {suite} cases are "
-                      "judged against)", nothing, suite=suite)]
+    for suite, (baseline, _, scheme) in SUITES.items()
+    for case in [Case(baseline, f"nothing, {scheme} (the run the {suite} cases are judged "
+                      "against)", nothing, suite=suite)]
     + [_gain_case(suite, name, changes) for name, changes in EXTREMES[suite]]
 ]

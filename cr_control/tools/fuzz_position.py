@@ -71,8 +71,8 @@ def _position_case(name: str, what: str, send, **changes) -> Case:
 
 
 CASES = [
-    _position_case("position_baseline", "nothing, on ur5_position (the run the position cases "
-                   "are judged against)", nothing),
+    _position_case("position_baseline", "nothing (the run the position cases are judged "
+                   "against)", nothing),
     _position_case("position_absurd_gains", "absurd gains set live, one request each: "
                    + ", ".join(f"{name} {_text(value)}" for name, value in ABSURD_GAINS),
                    absurd_gains),
