@@ -6,10 +6,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import Any, NamedTuple
 
-if TYPE_CHECKING:
-    from cr_control.tools.fuzz import Intruder
+#: What a case's ``send`` and ``prepare`` are given: :class:`cr_control.tools.fuzz.Intruder`
+#: (not imported here: that module imports this one).
+Intruder = Any
 
 
 @dataclass(frozen=True)
