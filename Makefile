@@ -75,12 +75,15 @@ benchmark: $(STAMP) $(ROBOTS_STAMP)
 	$(BIN)/cr_benchmark --json $(BENCH_JSON) $(BENCH_ARGS)
 
 ## Hostile and careless input: the tools alone (robot descriptions, files, command lines;
-## --suite inputs, ~1 min) and recorded real-time sessions on the thesis arm and on panda_ft,
-## one row per case (alive, finite, max |q'|, max |f|, safe stop, resumed, verdict), ~10 min;
-## FUZZ_ARGS e.g. "--suite robot" or "--cases huge_joint_state,second_commander".
+## --suite inputs, ~1 min) and recorded real-time sessions, one row per case (alive, finite,
+## max |q'|, max |f|, safe stop, resumed, verdict): suites session (thesis arm) and robot
+## (panda_ft), ~10 min; delay (panda_ft behind a delayed, bursty driver, ~2 min), position
+## (ur5_position, ~3 min), gains and gains_impedance (panda, gains at their accepted
+## extremes, ~3 min each); ~20 min in all. FUZZ_ARGS e.g. "--suite delay,position" or
+## "--cases huge_joint_state,second_commander".
 FUZZ_ARGS ?=
 fuzz: $(STAMP)
-	$(BIN)/python -m cr_control.tools.warm_up adaptive_impedance
+	$(BIN)/python -m cr_control.tools.warm_up adaptive_impedance impedance
 	$(BIN)/python -m cr_control.tools.fuzz $(FUZZ_ARGS)
 
 clean:

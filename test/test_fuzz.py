@@ -76,7 +76,7 @@ def test_the_round_two_session_cases_run_on_the_robot_after_its_baseline():
         "robot_baseline", "target_10_m", "target_1e300_m", "target_along_table", "target_deep",
         "target_diagonal", "target_quaternion_1e200", "target_nan", "wrench_target_1e6",
         "wrench_pull_away", "zeroing_walk", "silent_intruder"}
-    assert fuzz.SUITES["robot"] == ("robot_baseline", "panda_ft")
+    assert fuzz.SUITES["robot"] == ("robot_baseline", "panda_ft", None)
     assert {case.name for case in robot if not case.speed_judged} == {
         "target_10_m", "target_1e300_m", "target_along_table", "target_deep", "target_diagonal",
         "target_quaternion_1e200", "wrench_pull_away", "zeroing_walk"}
@@ -162,3 +162,103 @@ def test_commanding_at_the_end_is_judged_against_the_baselines_windows():
     # The plant's closing report (17 cycles, 0 %) is not judged; a full window of 0 % is.
     assert fuzz.commanding_at_end(np.array([0.9, 0.0]), running, 0.85, cycles=np.array([990, 17]))
     assert not fuzz.commanding_at_end(np.array([0.0, 0.9]), running, 0.85, cycles=np.array([990, 17]))
+
+
+# -- the delay, position and gains suites ------------------------------------------------
+
+def test_each_session_suite_has_its_baseline_and_cases_of_its_own():
+    """Every suite's baseline is one of its cases; every case name once; the new suites'
+    cases are the ones users asked for, and what they are judged by."""
+    names = [case.name for case in fuzz.ALL_CASES]
+    assert len(set(names)) == len(names) == len(fuzz.CASE_NAMES)
+    for suite, (baseline, _, _) in fuzz.SESSION_SUITES.items():
+        assert {case.suite for case in fuzz.ALL_CASES if case.name == baseline} == {suite}
+    by_suite = {suite: {c.name: c for c in fuzz.ALL_CASES if c.suite == suite}
+                for suite in fuzz.SESSION_SUITES}
+    assert fuzz.SESSION_SUITES["delay"].robot == "panda_ft"
+    assert fuzz.SESSION_SUITES["position"].robot == "ur5_position"
+    assert fuzz.SESSION_SUITES["gains"] == ("gains_baseline", "panda", "adaptive_impedance")
+    assert fuzz.SESSION_SUITES["gains_impedance"].scheme == "impedance"
+    assert {"delay_3_cycles", "late_bursts_1pct", "late_bursts_5pct"} <= set(by_suite["delay"])
+    assert {"position_absurd_gains", "position_target_10_m", "position_target_1e300_m",
+            "position_target_nan", "position_wrench_1e12", "position_stalled_controller"} \
+        <= set(by_suite["position"])
+    assert all(c.commands_judged for c in by_suite["position"].values())
+    assert all(c.speed_limit_share == 0.5 and c.force_judged and c.session_args
+               for name, c in by_suite["delay"].items() if name != "delay_baseline")
+    for suite in ("gains", "gains_impedance"):
+        cases = [c for name, c in by_suite[suite].items() if "baseline" not in name]
+        assert len(cases) == 6
+        assert all(c.speed_limit_share == 1.0 and c.force_limit == 15.0 for c in cases)
+
+
+@needs_erd
+@pytest.mark.parametrize("name", [c.name for c in fuzz.ALL_CASES if c.session_args])
+def test_a_cases_session_arguments_are_parameters_its_session_takes(tmp_path, name):
+    from cr_control.tools.session import SessionConfig, session_parameters
+
+    case = next(c for c in fuzz.ALL_CASES if c.name == name)
+    suite = fuzz.SESSION_SUITES[case.suite]
+    cfg = SessionConfig(scheme=suite.scheme or "adaptive_impedance", robot=suite.robot,
+                        overrides=list(case.session_args))
+    plant = session_parameters(cfg, tmp_path / "x.mcap")["plant"]
+    for text in case.session_args:
+        key, value = text.split("=")
+        assert str(plant[key.removeprefix("plant.")]) == value
+
+
+def test_the_late_bursts_are_the_plants_seeded_draws():
+    """~1 % and ~5 % of the cycles late over 10 s at 1 kHz, the same every time."""
+    from cr_control.tools import fuzz_delay
+
+    assert fuzz_delay.burst_draws(fuzz_delay.BURSTS_1PCT, 10_000) == (2, 90)
+    started, late = fuzz_delay.burst_draws(fuzz_delay.BURSTS_5PCT, 10_000)
+    assert started == 11 and 0.04 < late / 10_000 < 0.06
+
+
+def test_a_commanded_position_jump_beyond_one_period_of_the_velocity_limit_is_flagged():
+    limits, period = np.array([2.0, 4.0]), 0.002          # one period: 4 mrad and 8 mrad
+    smooth = np.array([[0.0, 0.0], [0.004, -0.008], [0.008, -0.016]])
+    assert fuzz.command_steps(smooth, limits, period) == (True, pytest.approx(1.0))
+    jumped = np.vstack([smooth, [[0.008, 0.5]]])
+    assert fuzz.command_steps(jumped, limits, period)[1] == pytest.approx(0.516 / 0.008)
+    assert fuzz.command_steps(np.vstack([smooth, [[math.nan, 0.0]]]), limits, period)[0] is False
+    judged = fuzz.Case("x", "x", lambda intruder: None, commands_judged=True)
+    position = dict(interface="position", commands_finite=True)
+    assert fuzz.verdict(row(command_jump=1.0, **position), judged, BASE) == "survived"
+    assert fuzz.verdict(row(command_jump=1.01, **position), judged, BASE).startswith(
+        "FAILED: a commanded position jumped 1.01 periods")
+    assert fuzz.verdict(row(command_jump=math.nan, **position), judged, BASE).startswith("FAILED")
+    assert fuzz.verdict(row(interface="position", commands_finite=False), judged, BASE) == \
+        "FAILED: a non-finite commanded position"
+    assert fuzz.verdict(row(command_jump=9.0, interface="effort"), judged, BASE) == "survived"
+
+
+def test_speed_and_force_are_judged_against_the_robots_limits_where_the_case_says():
+    held = fuzz.Case("x", "x", lambda intruder: None, speed_limit_share=0.5, force_limit=15.0)
+    assert fuzz.verdict(row(speed_share=0.5, max_force=15.0), held, BASE) == "survived"
+    assert fuzz.verdict(row(speed_share=0.51, max_force=1.0), held, BASE) == \
+        "FAILED: a joint at 0.51 of its velocity limit > 0.5"
+    assert fuzz.verdict(row(speed_share=0.1, max_force=15.1), held, BASE) == \
+        "FAILED: max |f| 15.1 N > 15 N"
+    assert fuzz.verdict(row(), held, BASE).startswith("FAILED: a joint at nan")
+    assert fuzz.verdict(row(speed_share=3.0, max_force=99.0), CASE, BASE) == "survived"
+
+
+@pytest.mark.parametrize("side, now, expected", [("most", 2.0, 37.5), ("least", 80.0, 37.5),
+                                                 ("most", 2.0, 100.0), ("least", 80.0, 0.0)])
+def test_the_extreme_is_bisected_through_the_answers(side, now, expected):
+    """Taken from ``now`` towards the bound (100) or the floor (0), every request between the
+    last taken size and the extreme; the last taken size is the extreme to 1e-6."""
+    from cr_control.tools.fuzz_gains import bisect_extreme
+
+    taken = []
+
+    def accepted(size: float) -> bool:
+        ok = expected in (0.0, 100.0) or (size <= expected if side == "most" else size >= expected)
+        taken.extend([size] if ok else [])
+        return ok
+
+    got = bisect_extreme(accepted, now, 100.0, 0.0, side)
+    assert got == pytest.approx(expected, rel=1e-6, abs=1e-9) and got == taken[-1]
+    assert taken == sorted(taken, reverse=side == "least")       # only ever towards it

@@ -1,6 +1,6 @@
 """cr_fuzz: hostile and careless input against the tools and running real-time sessions.
 
-Three suites (``--suite``), each printing a table:
+Seven suites (``--suite``), each printing a table:
 
 - ``inputs``: robot descriptions, files and command lines (:mod:`cr_control.tools.fuzz_inputs`):
   each tool run as a process of its own under resource limits; no ROS session. CI runs
@@ -14,6 +14,17 @@ Three suites (``--suite``), each printing a table:
   pressing), ~/zero_ft called over and over while pressing, and a node with a silent
   /joint_states publisher and a /joint_commands publisher on the domain before the session
   starts that then commands 1e308 N m.
+- ``delay`` (:mod:`~cr_control.tools.fuzz_delay`): panda_ft behind a slow driver, the
+  session's plant given a transport delay of 3 cycles and late bursts (~1 % and ~5 % of the
+  cycles late); no joint above half its velocity limit, the force within the baseline's.
+- ``position`` (:mod:`~cr_control.tools.fuzz_position`): a UR5 taking joint positions
+  (``ur5_position``; ``--robot xarm7`` or ``panda_position`` too): absurd gains set live,
+  far and NaN pose targets, a 1e12 N wrench, the controller's process stopped for 0.5 s;
+  every commanded position finite and within one period of its velocity limit of the last.
+- ``gains`` and ``gains_impedance`` (:mod:`~cr_control.tools.fuzz_gains`): the Panda wiping
+  with adaptive_impedance and impedance, a gain set live to its accepted extreme (found by
+  bisection through the controller's parameter service); no reflex, every joint below its
+  velocity limit, the force at most 1.5 x the 10 N target.
 
 Each session case runs a recorded real-time session (plant, controller, recorder:
 ``cr_session``'s processes on a domain of their own) while this process's own node, which
@@ -30,19 +41,32 @@ happened, one row per case:
   last timing window's share of fresh commands at least RESUMED_SHARE of the baseline
   run's median window: a stopped controller gives ~0 %, a loaded 2-core machine 55-95 %
   window to window; how well the loop runs is the miss column's);
+- q'/lim: the largest joint speed after the first second as a share of the joint's URDF
+  velocity limit (robot plants);
 - miss: the longest run of plant ticks without a new command (ms at 1 kHz);
+- jump: on a position interface, the largest step between consecutive commanded positions,
+  in control periods of the joint's velocity limit (at most 1);
 - verdict: ``survived`` when alive, finite, no safe stop, resumed, max |q'| within the
   suite's baseline run's (same scheme and robot, nothing sent) times SPEED_MARGIN plus
   SPEED_FLOOR (not for a target that moves the arm on purpose), for the force-judged
   cases max |f| within the baseline's times FORCE_MARGIN plus FORCE_FLOOR, and, for the
-  cases held to it, the miss within the baseline's plus the case's margin; else
-  ``FAILED`` with the first reason.
+  cases held to it, the miss within the baseline's plus the case's margin; and, where
+  the case says (:class:`~cr_control.tools.fuzz_case.Case`), against the robot's own
+  limits: q'/lim, max |f| and the commanded positions (finite, jump at most 1); else
+  ``FAILED`` with the first reason (a safe stop with the plant's reason and by when).
+
+A case may change its session rather than send a message: ``Case.session_args`` are
+cr_session's ``-p NODE.PARAM=VALUE`` overrides (the delay suite's plant parameters). A
+suite (:class:`~cr_control.tools.fuzz_case.Suite`) names its baseline, robot and scheme
+(``--robot`` and, where the suite names none, ``--scheme`` choose). The row's "seen" says
+when the input began (s after the first state) and what the case noted.
 
 Each session suite's baseline runs first. Exit status 0 if every case survived (or was
 refused, for the inputs), 1 if one did not, 2 on a usage error.
 
     cr_fuzz                       # every case, adaptive_impedance, 8 s sessions
     cr_fuzz --suite inputs        # the tools alone, ~1 min
+    cr_fuzz --suite position --robot xarm7
     cr_fuzz --cases second_commander,huge_joint_state --duration 6
 """
 
@@ -59,12 +83,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 
 from cr_control.core.ros_env import claim_free_domain, isolated_env
 from cr_control.robots import ROBOTS, home_tip
+from cr_control.tools import fuzz_delay, fuzz_gains, fuzz_position
+from cr_control.tools.fuzz_case import Case, Suite, nothing
 
 #: A case's max |q'| may exceed the baseline run's by this factor plus SPEED_FLOOR.
 SPEED_MARGIN = 1.2
@@ -77,27 +104,6 @@ SETTLE_S = 1.0
 RESUMED_SHARE = 0.5
 #: A timing window of fewer cycles (the plant's closing report) is not judged.
 FULL_WINDOW_CYCLES = 100
-
-
-@dataclass(frozen=True)
-class Case:
-    """One kind of bad input: ``send(intruder)`` sends it; ``miss_margin`` (ms): the case's
-    longest miss may exceed the baseline's by this much (None: not judged); ``extra_s``:
-    the session runs this much longer (an input that takes seconds to send, so that the
-    controller's resumption is judged after it); ``suite``: the group it runs in (its
-    baseline and robot: SUITES); ``prepare(intruder)``: what the intruder does before the
-    session starts; ``speed_judged``: max |q'| judged against the baseline's (a target
-    that moves the arm on purpose is not); ``force_judged``: the true contact force too."""
-
-    name: str
-    what: str
-    send: Callable[[Intruder], None]
-    miss_margin: float | None = None
-    extra_s: float = 0.0
-    suite: str = "session"
-    prepare: Callable[[Intruder], None] | None = None
-    speed_judged: bool = True
-    force_judged: bool = False
 
 
 class Intruder:
@@ -114,8 +120,12 @@ class Intruder:
 
         self.topics, self.qos = topics, CONTROL_QOS
         self.controller = f"/{controller}"
-        #: The session's robot profile (None: a thesis plant); run_case sets it.
+        #: The session's robot profile (None: a thesis plant) and the session itself (its
+        #: processes, its configuration); run_case sets them.
         self.robot: str | None = None
+        self.session = None
+        #: What the case did, in words, for the row's "seen" (e.g. the value a gain reached).
+        self.notes: list[str] = []
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = Node("cr_fuzz", context=self.context)
@@ -398,15 +408,24 @@ CASES = [
          lambda x: x.commands(lambda i: 1e308, 1000), suite="robot",
          prepare=lambda x: x.silent_publishers()),
 ]
-CASE_NAMES = [case.name for case in CASES]
-#: The session suites: their baseline case and robot profile (None: --robot, by default the
-#: scheme's thesis plant). The "inputs" suite (no sessions) is cr_control.tools.fuzz_inputs.
-SUITES = {"session": ("baseline", None), "robot": ("robot_baseline", "panda_ft")}
+#: The session suites defined here: their baseline case, robot profile and scheme (Suite).
+#: The "inputs" suite (no sessions) is cr_control.tools.fuzz_inputs.
+SUITES = {"session": Suite("baseline", None), "robot": Suite("robot_baseline", "panda_ft")}
+#: Every session suite, in the order they run: this module's, then the delay, position and
+#: gains suites' (their modules beside this one).
+SESSION_SUITES = {**SUITES, **fuzz_delay.SUITES, **fuzz_position.SUITES, **fuzz_gains.SUITES}
+#: Every session case, by suite.
+ALL_CASES = CASES + fuzz_delay.CASES + fuzz_position.CASES + fuzz_gains.CASES
+CASE_NAMES = [case.name for case in ALL_CASES]
 #: A force-judged case's largest true contact force may exceed the baseline's by this factor
 #: plus FORCE_FLOOR (N).
 FORCE_MARGIN = 1.2
 FORCE_FLOOR = 2.0
 
+
+#: A commanded position's step may exceed one period of its joint's velocity limit by this
+#: share (rounding: the command stream is limited to exactly that step).
+JUMP_TOLERANCE = 1e-6
 
 #: Counters that show an input refused: the plant's (/plant/timing), the controller's status.
 PLANT_COUNTERS = ("commands_refused", "commands_foreign", "commands_oversized",
@@ -435,6 +454,20 @@ class Row:
     #: The largest true contact force after the first second (N; /plant/contact_wrench,
     #: NaN if the plant publishes none).
     max_force: float = math.nan
+    #: The largest joint speed after the first second as a share of the joint's URDF
+    #: velocity limit (NaN on a thesis plant).
+    speed_share: float = math.nan
+    #: The robot's command interface ("" on a thesis plant); on "position": every commanded
+    #: position finite, and the largest step between consecutive commands in control periods
+    #: of the joint's velocity limit (NaN: fewer than two commands).
+    interface: str = ""
+    commands_finite: bool = True
+    command_jump: float = math.nan
+    #: Why and by when the safe stop engaged ("watchdog, by 1.0 s": the plant's reason and the
+    #: end of the first timing window that reported it, from the first state).
+    safe_stop_why: str = ""
+    #: The first recorded state's stamp (s; real time: the wall clock's).
+    first_state: float = math.nan
 
 
 def commanding_at_end(fresh: np.ndarray, stopped: np.ndarray, reference: float,
@@ -450,10 +483,66 @@ def commanding_at_end(fresh: np.ndarray, stopped: np.ndarray, reference: float,
                 and fresh[-1] >= RESUMED_SHARE * reference)
 
 
+@cache
+def velocity_limits(robot: str) -> dict[str, float]:
+    """Joint name -> URDF velocity limit (rad/s or m/s) of ``robot``'s chain."""
+    from cr_control.models.urdf import load_chain
+
+    r = ROBOTS[robot]
+    chain = load_chain("", r.urdf_file, r.base_link, r.tip_link)
+    return dict(zip(chain.joint_names, map(float, chain.limits.velocity), strict=True))
+
+
+def limits_of(robot: str, names: list[str]) -> np.ndarray:
+    """The velocity limits of the joints ``names`` (inf for a joint not in the chain)."""
+    limits = velocity_limits(robot)
+    return np.array([limits.get(name, math.inf) for name in names])
+
+
+def command_steps(position: np.ndarray, limits: np.ndarray, period: float) -> tuple[bool, float]:
+    """(every commanded position finite, the largest step between consecutive commands in
+    units of ``period`` times the joint's velocity limit) of the commands' ``position``
+    (rows: messages in order; a row of NaN carried no position and is left out)."""
+    position = position[~np.all(np.isnan(position), axis=1)]
+    finite = bool(np.isfinite(position).all())
+    if len(position) < 2:
+        return finite, math.nan
+    with np.errstate(invalid="ignore"):
+        steps = np.abs(np.diff(position, axis=0)) / (limits * period)
+    return finite, float(np.nanmax(steps)) if (~np.isnan(steps)).any() else math.nan
+
+
+def judge_robot(row: Row, session, robot: str | None) -> None:
+    """Fill ``row``'s judgments against ``robot``'s own limits: the joints' speed share of
+    their velocity limits and, on a position interface, the commanded positions."""
+    if robot is None:
+        return
+    states, commands = session.joint_states, session.joint_commands
+    if states is not None and len(states.time):
+        late = states.time >= states.time[0] + SETTLE_S
+        if late.any():
+            share = np.abs(states.velocity[late]) / limits_of(robot, states.names)
+            row.speed_share = float(np.nanmax(share))
+    row.interface = ROBOTS[robot].command_interface
+    if row.interface == "position" and commands is not None:
+        row.commands_finite, row.command_jump = command_steps(
+            commands.position, limits_of(robot, commands.names), 1.0 / ROBOTS[robot].rate_hz)
+
+
+def safe_stop_why(timing: dict[str, np.ndarray], start: float) -> str:
+    """The plant's reason for its first safe stop and by when (s from ``start``)."""
+    from cr_sim.loop_stats import SAFE_STOP_REASONS
+
+    first = int(np.flatnonzero(timing["safe_stop"] > 0)[0])
+    reason = timing.get("safe_stop_reason", np.zeros(first + 1))[first]
+    return f"{SAFE_STOP_REASONS.get(int(reason), 'unknown')}, by {timing['stamp'][first] - start:.1f} s"
+
+
 def judge(recording: Path | None, case: str, alive: bool, note: str,
-          reference: float | None = None) -> Row:
+          reference: float | None = None, robot: str | None = None) -> Row:
     """The row of a case from its recording (None: nothing recorded); ``reference``: the
-    baseline's median fresh share (None: the run's own, for the baseline)."""
+    baseline's median fresh share (None: the run's own, for the baseline); ``robot``: the
+    session's robot profile (None: a thesis plant), whose limits judge_robot reads."""
     from cr_control.analysis.analyze import load_session
     from cr_control.analysis.session_file import SessionError
 
@@ -495,15 +584,22 @@ def judge(recording: Path | None, case: str, alive: bool, note: str,
         late = contact.time >= states.time[0] + SETTLE_S
         force = float(np.nanmax(np.linalg.norm(contact.force[late], axis=1))) if late.any() \
             else math.nan
-    return Row(case, alive, finite, speed, safe_stop, resumed, float(np.nanmax(miss)), note,
-               seen=", ".join(counted), fresh_median=median, max_force=force)
+    row = Row(case, alive, finite, speed, safe_stop, resumed, float(np.nanmax(miss)), note,
+              seen=", ".join(counted), fresh_median=median, max_force=force)
+    if states is not None and len(states.time):
+        row.first_state = float(states.time[0])
+    if safe_stop:
+        row.safe_stop_why = safe_stop_why(timing, row.first_state)
+    judge_robot(row, session, robot)
+    return row
 
 
 def verdict(row: Row, case: Case, baseline: Row | None) -> str:
     """``survived`` or ``FAILED: <first reason>``."""
     reasons = [text for bad, text in (
         (not row.alive, "a process died"), (not row.finite, "non-finite state"),
-        (row.safe_stop, "safe stop"), (not row.resumed, "controller not commanding at the end"))
+        (row.safe_stop, "safe stop" + (f" ({row.safe_stop_why})" if row.safe_stop_why else "")),
+        (not row.resumed, "controller not commanding at the end"))
         if bad]
     if baseline is not None and case.name != baseline.case:
         allowed = baseline.max_speed * SPEED_MARGIN + SPEED_FLOOR
@@ -515,12 +611,36 @@ def verdict(row: Row, case: Case, baseline: Row | None) -> str:
         if case.miss_margin is not None and not row.miss_ms <= baseline.miss_ms + case.miss_margin:
             reasons.append(f"missed {row.miss_ms:.0f} ms > baseline {baseline.miss_ms:.0f} + "
                            f"{case.miss_margin:.0f}")
+    reasons += robot_reasons(row, case)
     return f"FAILED: {reasons[0]}" if reasons else "survived"
+
+
+def robot_reasons(row: Row, case: Case) -> list[str]:
+    """Why ``row`` breaks what ``case`` holds it to against the robot's own limits (empty: it
+    does not): the joints' speed share, the contact force, the commanded positions."""
+    reasons = []
+    share = case.speed_limit_share
+    if share is not None and not row.speed_share <= share:
+        reasons.append(f"a joint at {row.speed_share:.3g} of its velocity limit > {share:g}")
+    if case.force_limit is not None and not row.max_force <= case.force_limit:
+        reasons.append(f"max |f| {row.max_force:.3g} N > {case.force_limit:g} N")
+    if case.commands_judged and row.interface == "position":
+        if not row.commands_finite:
+            reasons.append("a non-finite commanded position")
+        elif not row.command_jump <= 1.0 + JUMP_TOLERANCE:
+            reasons.append(f"a commanded position jumped {row.command_jump:.3g} periods of "
+                           "its velocity limit")
+    return reasons
 
 
 def suite_robot(suite: str, args: argparse.Namespace) -> str | None:
     """The robot profile a suite's sessions run on."""
-    return args.robot or SUITES[suite][1]
+    return args.robot or SESSION_SUITES[suite].robot
+
+
+def suite_scheme(suite: str, args: argparse.Namespace) -> str:
+    """The scheme a suite's sessions run: its own, else --scheme."""
+    return SESSION_SUITES[suite].scheme or args.scheme
 
 
 def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
@@ -529,13 +649,15 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
     ``reference``: the baseline's median fresh share."""
     from cr_control.tools.session import Session, SessionConfig, SessionError
 
-    cfg = SessionConfig(scheme=args.scheme, duration=args.duration + case.extra_s,
+    cfg = SessionConfig(scheme=suite_scheme(case.suite, args),
+                        duration=args.duration + case.extra_s,
                         robot=suite_robot(case.suite, args), out=out,
+                        overrides=list(case.session_args),
                         name=f"fuzz-{datetime.now():%Y%m%d-%H%M%S}-{case.name}")
     session = Session(cfg, progress=lambda *_: None)
     domain = claim_free_domain()
-    intruder = Intruder(domain.domain_id, args.scheme)
-    intruder.robot = cfg.robot
+    intruder = Intruder(domain.domain_id, cfg.scheme)
+    intruder.robot, intruder.session = cfg.robot, session
     failure: list[str] = []
     if case.prepare is not None:
         case.prepare(intruder)
@@ -548,11 +670,13 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
 
     worker = threading.Thread(target=run, name=f"session-{case.name}")
     note = ""
+    sent: float | None = None          # when the case began sending (wall clock)
     try:
         worker.start()
         started = intruder.spin_until(lambda: intruder.timing_messages >= 2 and intruder.joint_names,
                                       60.0 + args.duration)
         if started and worker.is_alive():
+            sent = time.time()
             try:
                 case.send(intruder)
             except Exception as exc:  # noqa: BLE001 - the row says what the fuzz itself could not do
@@ -565,33 +689,42 @@ def run_case(case: Case, args: argparse.Namespace, out: Path, progress=print,
         worker.join()
         intruder.close()
         domain.release()
-    row = judge(session.mcap, case.name, not failure, failure[0] if failure else note, reference)
+    row = judge(session.mcap, case.name, not failure, failure[0] if failure else note, reference,
+                robot=cfg.robot)
+    if sent is not None and case.send is not nothing and math.isfinite(row.first_state):
+        intruder.notes.insert(0, f"sent at {sent - row.first_state:.1f} s")
+    answers = ""
     if intruder.replies:
         accepted = sum(ok for ok, _ in intruder.replies)
         refused = [reason for ok, reason in intruder.replies if not ok]
         first = (refused or ["accepted"])[0]
         first = first if len(first) <= 70 else first[:67] + "..."
-        row.seen = "; ".join(filter(None, [f"{len(intruder.replies)} answer(s), {accepted} "
-                                           f"accepted: {first}", row.seen]))
+        answers = f"{len(intruder.replies)} answer(s), {accepted} accepted: {first}"
+    row.seen = "; ".join(filter(None, [*intruder.notes, answers, row.seen]))
     return row
 
 
 def format_rows(rows: list[Row], cases: dict[str, Case]) -> str:
-    head = f"{'case':27} {'alive':5} {'finite':6} {'max|q_dot|':>10} {'max|f| N':>8} " \
-           f"{'safe stop':9} {'resumed':7} {'miss ms':>7}  verdict"
+    """The suite's table (q'/lim: the largest joint speed's share of its velocity limit;
+    jump: the largest commanded position step in periods of the velocity limit), then
+    what each case sent and what was seen."""
+    width = max([27] + [len(r.case) for r in rows])
+    head = f"{'case':{width}} {'alive':5} {'finite':6} {'max|q_dot|':>10} {'q_dot/lim':>9} " \
+           f"{'max|f| N':>8} {'safe stop':9} {'resumed':7} {'miss ms':>7} {'jump':>6}  verdict"
     lines = [head, "-" * len(head)]
     for r in rows:
         yes = {True: "yes", False: "no"}
-        lines.append(f"{r.case:27} {yes[r.alive]:5} {yes[r.finite]:6} {r.max_speed:10.3f} "
-                     f"{r.max_force:8.1f} {yes[r.safe_stop]:9} {yes[r.resumed]:7} "
-                     f"{r.miss_ms:7.0f}  {r.verdict}" + (f"  ({r.note})" if r.note else ""))
+        lines.append(f"{r.case:{width}} {yes[r.alive]:5} {yes[r.finite]:6} {r.max_speed:10.3f} "
+                     f"{r.speed_share:9.2f} {r.max_force:8.1f} {yes[r.safe_stop]:9} "
+                     f"{yes[r.resumed]:7} {r.miss_ms:7.0f} {r.command_jump:6.2f}  {r.verdict}"
+                     + (f"  ({r.note})" if r.note else ""))
     lines.append("")
     lines += [f"{r.case}: {cases[r.case].what}" + (f"; seen: {r.seen}" if r.seen else "")
               for r in rows]
     return "\n".join(lines)
 
 
-ALL_SUITES = ("inputs", *SUITES)
+ALL_SUITES = ("inputs", *SESSION_SUITES)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -621,9 +754,9 @@ def _names(text: str) -> list[str]:
 
 def run_suite(suite: str, wanted: list[str], args: argparse.Namespace, out: Path) -> bool:
     """The session suite's baseline and its ``wanted`` cases, then its table; all survived?"""
-    cases = {case.name: case for case in CASES}
-    baseline = SUITES[suite][0]
-    order = [baseline] + [c.name for c in CASES if c.suite == suite and c.name in wanted
+    cases = {case.name: case for case in ALL_CASES}
+    baseline = SESSION_SUITES[suite].baseline
+    order = [baseline] + [c.name for c in ALL_CASES if c.suite == suite and c.name in wanted
                           and c.name != baseline]
     rows: list[Row] = []
     for i, name in enumerate(order, 1):
@@ -674,7 +807,7 @@ def main(argv: list[str] | None = None) -> int:
         print()
         ok = all(r.verdict == "refused" for r in rows)
     with tempfile.TemporaryDirectory(prefix="cr_fuzz-") as tmp:
-        for suite in SUITES:
+        for suite in SESSION_SUITES:
             if any(_suite_of(name) == suite for name in wanted):
                 ok = run_suite(suite, wanted, args, args.out or Path(tmp)) and ok
     return 0 if ok else 1
@@ -682,7 +815,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _suite_of(name: str) -> str:
     """The suite a case of any suite belongs to."""
-    return next((case.suite for case in CASES if case.name == name), "inputs")
+    return next((case.suite for case in ALL_CASES if case.name == name), "inputs")
 
 
 if __name__ == "__main__":
