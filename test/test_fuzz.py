@@ -17,16 +17,16 @@ import pytest
 from robot_data import needs_erd
 
 from cr_control import robots
-from cr_control.tools import fuzz
+from cr_control.tools import fuzz, fuzz_verdict
 
-BASE = fuzz.Row("baseline", True, True, 1.0, False, True, 3.0)
+BASE = fuzz_verdict.Row("baseline", True, True, 1.0, False, True, 3.0)
 
 
-def row(**changes) -> fuzz.Row:
+def row(**changes) -> fuzz_verdict.Row:
     values = dict(case="x", alive=True, finite=True, max_speed=1.0, safe_stop=False,
                   resumed=True, miss_ms=3.0)
     values.update(changes)
-    return fuzz.Row(**values)
+    return fuzz_verdict.Row(**values)
 
 
 CASE = fuzz.Case("x", "x", lambda intruder: None)
@@ -43,19 +43,19 @@ TIGHT = fuzz.Case("x", "x", lambda intruder: None, miss_margin=2.0)
     ({"max_speed": math.nan}, "max |q'|"),
 ])
 def test_verdict_names_the_first_failure(changes, reason):
-    got = fuzz.verdict(row(**changes), CASE, BASE)
+    got = fuzz_verdict.verdict(row(**changes), CASE, BASE)
     assert got == "survived" if reason is None else got.startswith(f"FAILED: {reason}")
 
 
 def test_the_speed_bound_is_the_baselines_with_its_margin():
-    assert fuzz.verdict(row(max_speed=1.25), CASE, BASE) == "survived"
-    assert fuzz.verdict(row(max_speed=1.26), CASE, BASE).startswith("FAILED")
+    assert fuzz_verdict.verdict(row(max_speed=1.25), CASE, BASE) == "survived"
+    assert fuzz_verdict.verdict(row(max_speed=1.26), CASE, BASE).startswith("FAILED")
 
 
 def test_missed_cycles_are_judged_only_where_the_case_says():
-    assert fuzz.verdict(row(miss_ms=5.0), TIGHT, BASE) == "survived"
-    assert fuzz.verdict(row(miss_ms=6.0), TIGHT, BASE).startswith("FAILED: missed 6 ms")
-    assert fuzz.verdict(row(miss_ms=600.0), CASE, BASE) == "survived"
+    assert fuzz_verdict.verdict(row(miss_ms=5.0), TIGHT, BASE) == "survived"
+    assert fuzz_verdict.verdict(row(miss_ms=6.0), TIGHT, BASE).startswith("FAILED: missed 6 ms")
+    assert fuzz_verdict.verdict(row(miss_ms=600.0), CASE, BASE) == "survived"
 
 
 def test_every_row_of_the_issue_is_a_case():
@@ -115,17 +115,17 @@ def test_the_table_targets_are_relative_to_the_robots_home_tip(robot):
 
 
 def test_force_and_speed_are_judged_where_the_case_says():
-    base = fuzz.Row("robot_baseline", True, True, 1.0, False, True, 3.0, max_force=10.0)
+    base = fuzz_verdict.Row("robot_baseline", True, True, 1.0, False, True, 3.0, max_force=10.0)
     pressing = fuzz.Case("x", "x", lambda intruder: None, suite="robot", force_judged=True)
     moving = fuzz.Case("x", "x", lambda intruder: None, suite="robot", speed_judged=False)
-    assert fuzz.verdict(row(max_force=14.0), pressing, base) == "survived"      # <= 1.2 x 10 + 2
-    assert fuzz.verdict(row(max_force=14.1), pressing, base).startswith("FAILED: max |f| 14.1 N")
-    assert fuzz.verdict(row(max_force=math.nan), pressing, base).startswith("FAILED: max |f|")
-    assert fuzz.verdict(row(max_force=40.0), CASE, base) == "survived"
-    assert fuzz.verdict(row(max_speed=3.0), moving, base) == "survived"
-    assert fuzz.verdict(row(max_speed=3.0), CASE, base).startswith("FAILED: max |q'|")
+    assert fuzz_verdict.verdict(row(max_force=14.0), pressing, base) == "survived"      # <= 1.2 x 10 + 2
+    assert fuzz_verdict.verdict(row(max_force=14.1), pressing, base).startswith("FAILED: max |f| 14.1 N")
+    assert fuzz_verdict.verdict(row(max_force=math.nan), pressing, base).startswith("FAILED: max |f|")
+    assert fuzz_verdict.verdict(row(max_force=40.0), CASE, base) == "survived"
+    assert fuzz_verdict.verdict(row(max_speed=3.0), moving, base) == "survived"
+    assert fuzz_verdict.verdict(row(max_speed=3.0), CASE, base).startswith("FAILED: max |q'|")
     itself = fuzz.Case("robot_baseline", "x", lambda intruder: None, suite="robot")
-    assert fuzz.verdict(row(max_speed=3.0), itself, base) == "survived"      # not against itself
+    assert fuzz_verdict.verdict(row(max_speed=3.0), itself, base) == "survived"      # not against itself
 
 
 def test_the_table_has_a_force_column():
@@ -154,14 +154,14 @@ def test_commanding_at_the_end_is_judged_against_the_baselines_windows():
     import numpy as np
 
     fresh, running, stopped = np.array([0.9, 0.8]), np.zeros(2), np.array([0.0, 1.0])
-    assert fuzz.commanding_at_end(fresh, running, reference=0.85)
-    assert not fuzz.commanding_at_end(fresh, stopped, reference=0.85)
-    assert not fuzz.commanding_at_end(np.array([0.9, 0.02]), running, reference=0.85)
-    assert not fuzz.commanding_at_end(np.array([0.9, 0.4]), running, reference=0.97)   # < 48.5 %
-    assert not fuzz.commanding_at_end(np.array([]), np.array([]), reference=0.85)
+    assert fuzz_verdict.commanding_at_end(fresh, running, reference=0.85)
+    assert not fuzz_verdict.commanding_at_end(fresh, stopped, reference=0.85)
+    assert not fuzz_verdict.commanding_at_end(np.array([0.9, 0.02]), running, reference=0.85)
+    assert not fuzz_verdict.commanding_at_end(np.array([0.9, 0.4]), running, reference=0.97)   # < 48.5 %
+    assert not fuzz_verdict.commanding_at_end(np.array([]), np.array([]), reference=0.85)
     # The plant's closing report (17 cycles, 0 %) is not judged; a full window of 0 % is.
-    assert fuzz.commanding_at_end(np.array([0.9, 0.0]), running, 0.85, cycles=np.array([990, 17]))
-    assert not fuzz.commanding_at_end(np.array([0.0, 0.9]), running, 0.85, cycles=np.array([990, 17]))
+    assert fuzz_verdict.commanding_at_end(np.array([0.9, 0.0]), running, 0.85, cycles=np.array([990, 17]))
+    assert not fuzz_verdict.commanding_at_end(np.array([0.0, 0.9]), running, 0.85, cycles=np.array([990, 17]))
 
 
 # -- the delay, position and gains suites ------------------------------------------------
@@ -219,30 +219,30 @@ def test_the_late_bursts_are_the_plants_seeded_draws():
 def test_a_commanded_position_jump_beyond_one_period_of_the_velocity_limit_is_flagged():
     limits, period = np.array([2.0, 4.0]), 0.002          # one period: 4 mrad and 8 mrad
     smooth = np.array([[0.0, 0.0], [0.004, -0.008], [0.008, -0.016]])
-    assert fuzz.command_steps(smooth, limits, period) == (True, pytest.approx(1.0))
+    assert fuzz_verdict.command_steps(smooth, limits, period) == (True, pytest.approx(1.0))
     jumped = np.vstack([smooth, [[0.008, 0.5]]])
-    assert fuzz.command_steps(jumped, limits, period)[1] == pytest.approx(0.516 / 0.008)
-    assert fuzz.command_steps(np.vstack([smooth, [[math.nan, 0.0]]]), limits, period)[0] is False
+    assert fuzz_verdict.command_steps(jumped, limits, period)[1] == pytest.approx(0.516 / 0.008)
+    assert fuzz_verdict.command_steps(np.vstack([smooth, [[math.nan, 0.0]]]), limits, period)[0] is False
     judged = fuzz.Case("x", "x", lambda intruder: None, commands_judged=True)
     position = dict(interface="position", commands_finite=True)
-    assert fuzz.verdict(row(command_jump=1.0, **position), judged, BASE) == "survived"
-    assert fuzz.verdict(row(command_jump=1.01, **position), judged, BASE).startswith(
+    assert fuzz_verdict.verdict(row(command_jump=1.0, **position), judged, BASE) == "survived"
+    assert fuzz_verdict.verdict(row(command_jump=1.01, **position), judged, BASE).startswith(
         "FAILED: a commanded position jumped 1.01 periods")
-    assert fuzz.verdict(row(command_jump=math.nan, **position), judged, BASE).startswith("FAILED")
-    assert fuzz.verdict(row(interface="position", commands_finite=False), judged, BASE) == \
+    assert fuzz_verdict.verdict(row(command_jump=math.nan, **position), judged, BASE).startswith("FAILED")
+    assert fuzz_verdict.verdict(row(interface="position", commands_finite=False), judged, BASE) == \
         "FAILED: a non-finite commanded position"
-    assert fuzz.verdict(row(command_jump=9.0, interface="effort"), judged, BASE) == "survived"
+    assert fuzz_verdict.verdict(row(command_jump=9.0, interface="effort"), judged, BASE) == "survived"
 
 
 def test_speed_and_force_are_judged_against_the_robots_limits_where_the_case_says():
     held = fuzz.Case("x", "x", lambda intruder: None, speed_limit_share=0.5, force_limit=15.0)
-    assert fuzz.verdict(row(speed_share=0.5, max_force=15.0), held, BASE) == "survived"
-    assert fuzz.verdict(row(speed_share=0.51, max_force=1.0), held, BASE) == \
+    assert fuzz_verdict.verdict(row(speed_share=0.5, max_force=15.0), held, BASE) == "survived"
+    assert fuzz_verdict.verdict(row(speed_share=0.51, max_force=1.0), held, BASE) == \
         "FAILED: a joint at 0.51 of its velocity limit > 0.5"
-    assert fuzz.verdict(row(speed_share=0.1, max_force=15.1), held, BASE) == \
+    assert fuzz_verdict.verdict(row(speed_share=0.1, max_force=15.1), held, BASE) == \
         "FAILED: max |f| 15.1 N > 15 N"
-    assert fuzz.verdict(row(), held, BASE).startswith("FAILED: a joint at nan")
-    assert fuzz.verdict(row(speed_share=3.0, max_force=99.0), CASE, BASE) == "survived"
+    assert fuzz_verdict.verdict(row(), held, BASE).startswith("FAILED: a joint at nan")
+    assert fuzz_verdict.verdict(row(speed_share=3.0, max_force=99.0), CASE, BASE) == "survived"
 
 
 @pytest.mark.parametrize("side, now, expected", [("most", 2.0, 37.5), ("least", 80.0, 37.5),
