@@ -414,12 +414,12 @@ PANDA = next(lay for lay in bm.LAYOUTS if lay.name == "panda")
 
 def test_layouts_selected_by_only_and_skip_in_their_order():
     names = [lay.name for lay in bm.LAYOUTS]
-    assert names == ["processes", "composed", "recorder", "panda", "ur5"]
+    assert names == ["processes", "composed", "recorder", "panda", "ur5", "ur5_position", "xarm7"]
     assert [lay.name for lay in bm.select_layouts()] == names
     assert bm.select_layouts(["panda"]) == [PANDA]
     assert [lay.name for lay in bm.select_layouts(["panda", "processes"])] == ["processes", "panda"]
     assert [lay.name for lay in bm.select_layouts(None, ["composed", "panda", "ur5"])] == [
-        "processes", "recorder"]
+        "processes", "recorder", "ur5_position", "xarm7"]
     assert bm.select_layouts(["panda"], ["panda"]) == []
     # The existing layouts keep their titles (README tables, the reference run's JSON keys).
     assert [(lay.session_title, lay.echo_title) for lay in bm.LAYOUTS[:3]] == [
@@ -431,6 +431,14 @@ def test_layouts_selected_by_only_and_skip_in_their_order():
     ur5 = next(lay for lay in bm.LAYOUTS if lay.name == "ur5")
     assert ur5.robot == "ur5" and ur5.record and "--rate" in ur5.echo_args
     assert float(ur5.echo_args[ur5.echo_args.index("--rate") + 1]) == robots.robot("ur5").rate_hz
+    # the arms that take joint positions: each against an echo pair of its driver's rate and
+    # its joints (the xArm's 150 Hz, 7 joints; the UR5's 500 Hz, 6)
+    for name, joints in (("ur5_position", 6), ("xarm7", 7)):
+        lay = next(lay for lay in bm.LAYOUTS if lay.name == name)
+        assert lay.robot == name and lay.record and lay.rules == "recorder"
+        args = lay.echo_args
+        assert float(args[args.index("--rate") + 1]) == robots.robot(name).rate_hz
+        assert int(args[args.index("--joints") + 1]) == joints
 
 
 def test_panda_targets_are_the_recorders_plus_compute_p50():

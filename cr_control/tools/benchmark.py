@@ -13,6 +13,8 @@ Runs, one after another, each on a ROS_DOMAIN_ID of its own (localhost discovery
    commanded, 3-D status and reference) against the echo pair carrying messages of the
    Panda's shape, with the same recorder (real time at 7 joints), and on the UR5 at
    ur_robot_driver's 500 Hz (``--robot ur5``, 6 joints) against an echo pair at 500 Hz;
+   the arms that take joint positions: ``ur5_position`` at 500 Hz and ``xarm7`` at 150 Hz
+   (the admittance outer loop), each against an echo pair of its rate and shape;
 5. the recorder alone under a synthetic load (a recorded session's 1 kHz topics): its
    CPU per message, and whether it lost any;
 6. lockstep sessions (across processes and composed) and the offline loop (no ROS):
@@ -267,7 +269,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     skipped = [name for name, on in (("composed", args.skip_composed), ("recorder", args.skip_recorder),
                                      ("panda", args.skip_recorder or args.skip_panda),
-                                     ("ur5", args.skip_recorder or args.skip_ur5)) if on]
+                                     ("ur5", args.skip_recorder or args.skip_ur5),
+                                     ("ur5_position", args.skip_recorder),
+                                     ("xarm7", args.skip_recorder)) if on]
     layouts = [] if args.only_recorder_load else select_layouts(args.only, skipped)
     if args.only and not layouts:
         print(f"cr_benchmark: --only {' '.join(args.only)}: every one of them is skipped", file=sys.stderr)

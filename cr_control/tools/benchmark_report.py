@@ -83,7 +83,10 @@ class Layout:
 #: locked fingers, :mod:`cr_control.robots`) and is commanded 7: the echo pair carries
 #: messages of that shape, with the recorder as beside the thesis arm; the targets
 #: there: the recorder's, and the controller's compute p50 <= 100 us. The
-#: UR5 runs at ur_robot_driver's 500 Hz (6 joints), its echo pair at the same rate.
+#: UR5 runs at ur_robot_driver's 500 Hz (6 joints), its echo pair at the same rate; so do the
+#: position-interface UR5 (the admittance outer loop: the law and its virtual arm stepped
+#: twice a cycle, no compute limit set) and the xArm at xarm_ros2's 150 Hz (7 joints, the
+#: law stepped seven times a cycle), each against an echo pair of its rate and shape.
 LAYOUTS = (
     Layout("processes", "session processes", "echo processes"),
     Layout("composed", "session composed", "echo composed", composed=True),
@@ -95,6 +98,13 @@ LAYOUTS = (
            robot="ur5", echo_args=("--joints", "6", "--command-joints", "6", "--joint-prefix",
                                    "ur5_", "--rate", "500"),
            rules="recorder", compute_p50_us=100.0),
+    Layout("ur5_position", "session ur5_position @ 500 Hz + recorder",
+           "echo ur5_position @ 500 Hz + recorder", record=True, robot="ur5_position",
+           echo_args=("--joints", "6", "--command-joints", "6", "--joint-prefix", "ur5_",
+                      "--rate", "500"), rules="recorder"),
+    Layout("xarm7", "session xarm7 @ 150 Hz + recorder", "echo xarm7 @ 150 Hz + recorder",
+           record=True, robot="xarm7", echo_args=("--joints", "7", "--command-joints", "7",
+                                                  "--rate", "150"), rules="recorder"),
 )
 
 
