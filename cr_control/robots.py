@@ -291,6 +291,12 @@ NN_FORCE_RAMP_TIME = 2.0
 #: (max_contact_force, as libfranka's); a larger one is scaled down to it
 #: (cr_control.schemes.impedance.base). At 50 N a 1e6 N target tripped that reflex at 3.1 s.
 MAX_TARGET_FORCE = 3.0 * WIPE_FORCE
+#: The fastest the reference follows a ~/target_pose on the robots (m/s; the law's default
+#: 0.5). A target streamed 10 m along the table for 2.5 s walked the Panda's tool out at
+#: 0.2 m/s on average while the elbow caught up with the wrist in surges, the fourth at
+#: 1.00 x joint 4's velocity limit (the plant's reflex, in real time and offline); with the
+#: reference at 0.2 m/s the joints stay within 0.72 of their limits.
+TARGET_MAX_SPEED = 0.2
 #: The largest transport delay (cycles of the profile's period) each scheme tolerates on the
 #: torque-interface profiles: wiping offline for 8 s with the plant node's command limits (a
 #: lockstep session's), force error RMS <= 0.3 N, radial <= 2 mm, no joint above half its
@@ -414,6 +420,7 @@ def controller_values(r: Robot, scheme: str) -> dict[str, Any]:
               "reference_phase": [0.0, -math.pi / 2, 0.0],
               "reference_frequency": WIPE_FREQUENCY, "posture": list(r.home),
               "force_ramp_time": FORCE_RAMP_TIME, "max_target_force": MAX_TARGET_FORCE,
+              "target_max_speed": TARGET_MAX_SPEED,
               "control_period": 1.0 / r.rate_hz, "command_delay_cycles": r.command_delay_cycles,
               "tolerated_delay_cycles": DELAY_MARGIN_CYCLES.get(r.name, {}).get(scheme, 0),
               "contact_stiffness": TABLE_STIFFNESS,

@@ -90,6 +90,7 @@ STUDIES = {
     "test_hostile_targets.py::test_sign_flips_at_every_cycle_of_a_500_hz_robot": 1,
     "test_target_bounds.py::test_streamed_targets_anywhere_leave_the_force_to_the_force_loop": 2,
     "test_target_bounds.py::test_single_targets_anywhere_leave_the_force_to_the_force_loop": 1,
+    "test_target_bounds.py::test_a_target_streamed_along_the_table_until_the_reach": 1,
     "test_real_robots.py::test_a_guarded_start_from_above_the_table": 2,
     "test_real_robots.py::test_a_wrong_model_costs_little": 1,
     "test_real_robots.py::test_a_gravity_mismatch_is_caught_in_the_first_second": 2,

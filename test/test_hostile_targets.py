@@ -373,7 +373,7 @@ def test_a_target_pose_out_of_reach_never_needs_a_reflex(scheme, robot, target):
     plant's supervision and the node's command limits (its 1 kN m/s torque-rate limit) as
     in a session. The target goes onto 90 % of the reach sphere (0.853 m from the Panda's
     first joint, 0.855 m from the UR5's: 90 % of the farthest their tips get), the
-    reference moves at target_max_speed (0.5 m/s) at most and waits while a joint passes
+    reference moves at target_max_speed (0.2 m/s on the robots) at most and waits while a joint passes
     PACE_FULL of its velocity limit: the target filter's position ends on the sphere (the
     chapter 3 laws' reference at most force_admittance_limit below it: their admittance
     still presses for 10 N in the air; measured 0.050 m), the tip moves towards it (0.08-0.48
@@ -408,7 +408,10 @@ def test_a_target_pose_out_of_reach_never_needs_a_reflex(scheme, robot, target):
     assert run.safe_stop_reason == 0, run.safe_stop_text
     assert speed < 0.9
     assert distance.max() <= c.reach and distance[-1] > distance[0] + 0.05
-    assert c.reach - c.values["force_admittance_limit"] - 1e-3 <= reference <= c.reach + 1e-9
+    # the critically damped target filter, still moving when its target stops on the sphere,
+    # may pass it by a hair: 1.1 um with the robots' 0.2 m/s (impedance, fuzzy on ur5_ft, 10 m
+    # up; none at 0.5 m/s): 10 um allowed
+    assert c.reach - c.values["force_admittance_limit"] - 1e-3 <= reference <= c.reach + 1e-5
     assert reference_speed[run.time > 2.0].max() <= c.values["target_max_speed"] * 1.001
     assert c.stops == 0 and c.commanding
     assert run.true_force[:, 2].max() <= 1.5 * robots.WIPE_FORCE
