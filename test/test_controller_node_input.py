@@ -123,3 +123,40 @@ def test_warm_up_leaves_nothing_to_compile_in_the_first_cycles():
                          timeout=300, check=True).stdout
     lines = out.splitlines()
     assert len(lines) == len(SCHEMES) and all(line.endswith(" []") for line in lines), out
+
+
+@pytest.mark.ros
+def test_a_lockstep_state_is_answered_when_its_own_wrench_comes(lockstep_node):
+    """The wrench of a state's cycle, lost on the way and sent again, arrives after the
+    state: the lockstep controller answers the state then, with that wrench (the offline
+    loop's numbers), not at once with the wrench of the cycle before."""
+    from geometry_msgs.msg import WrenchStamped
+    from std_msgs.msg import String
+
+    from cr_control.core import topics
+
+    node = lockstep_node
+    node.plant_interface.on_interface(String(data="effort"))
+    on_wrench = next(sub.callback for sub in node.subscriptions if sub.topic_name == topics.WRENCH)
+
+    def send(k: int, state: bool = True, wrench: bool = True, force: float = 0.0) -> None:
+        if wrench:
+            w = WrenchStamped()
+            w.header.stamp.nanosec, w.wrench.force.x = k * 1_000_000, force
+            on_wrench(serialize_message(w))
+        if state:
+            msg = JointState(name=["joint1", "joint2"], position=[3.0358, -2.4401],
+                             velocity=[0.0, 0.0])
+            msg.header.stamp.nanosec = k * 1_000_000
+            node._on_joint_state(serialize_message(msg))
+
+    def answered() -> int:
+        return deserialize_message(node.out.last, JointState).header.stamp.nanosec // 1_000_000
+
+    send(0)
+    send(1)
+    assert answered() == 1
+    send(2, wrench=False)                              # its wrench is still on its way
+    assert answered() == 1 and node.inputs.force[0] == 0.0
+    send(2, state=False, force=5.0)                    # it comes: the state is answered with it
+    assert answered() == 2 and node.inputs.force[0] == 5.0
