@@ -32,8 +32,6 @@ rates, which the rule does not model, and on panda_ft the NN law's D at its boun
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -41,6 +39,7 @@ from cr_control import offline, robots
 from cr_control.core.parameters import validate
 from cr_control.schemes.blocks.gain_bounds import gain_size, of_size
 from cr_control.schemes.registry import controller_class
+from cr_control.tools.fuzz_gains import bisect_extreme
 
 T_SET = 1.5
 DURATION = 3.5
@@ -117,23 +116,11 @@ def extreme(controller, param, side: str):
             return value
         return None
 
-    now = gain_size(controller.values[param.name])
-    if side == "most":
-        if accepted(param.bound) is not None:
-            return accepted(param.bound)
-        low, high = now, float(param.bound)
-        for _ in range(50):
-            mid = math.sqrt(low * high)
-            low, high = (mid, high) if accepted(mid) is not None else (low, mid)
-        return accepted(low)
     floor = 0.0 if param.kind.startswith("nonneg") else 1e-9
-    if accepted(floor) is not None:
-        return accepted(floor)
-    low, high = floor, now
-    for _ in range(50):
-        mid = 0.5 * (low + high)
-        low, high = (low, mid) if accepted(mid) is not None else (mid, high)
-    return accepted(high)
+    size = bisect_extreme(lambda x: accepted(x) is not None,
+                          gain_size(controller.values[param.name]), float(param.bound), floor,
+                          side, steps=50)
+    return accepted(size)
 
 
 @pytest.mark.parametrize("robot,scheme,changes", cases())

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cr_control.experiments.wiping import late_bursts
 from cr_control.robots import ROBOTS
 from cr_control.tools.fuzz_case import Case, Suite, nothing, plant_args
 
@@ -24,40 +25,41 @@ SUITES = {"delay": Suite("delay_baseline", "panda_ft")}
 SPEED_LIMIT_SHARE = 0.5
 #: The driver's constant delay of the delay cases (cycles; the profile's is 1).
 DELAY_CYCLES = 3
-#: Late bursts of 20-70 cycles (45 on average) starting with these probabilities per cycle
-#: outside a burst: p x 45 / (1 + p x 45) of the cycles late, ~1 % and ~5 %.
-BURST_CYCLES = (20, 70)
-BURSTS_1PCT = 2.2e-4
-BURSTS_5PCT = 1.2e-3
+#: The bursts' shares of late cycles (20-70 cycles each at 1 kHz:
+#: :func:`cr_control.experiments.wiping.late_bursts`, as the wiping study draws them).
+BURSTS_1PCT = 0.01
+BURSTS_5PCT = 0.05
 #: The bursts' seed: at 1 %, bursts at plant steps 3635 and 5257 (90 cycles late in 10 s);
 #: at 5 %, 11 bursts from step 2821 on (482 cycles late in 10 s).
 BURSTS_SEED = 2
 
 
-def bursts(probability: float) -> dict[str, object]:
-    """The plant's late-burst parameters at ``probability`` per cycle."""
-    return {"late_burst_probability": probability, "late_burst_min_cycles": BURST_CYCLES[0],
-            "late_burst_max_cycles": BURST_CYCLES[1], "late_burst_seed": BURSTS_SEED}
+def bursts(fraction: float) -> dict[str, object]:
+    """The plant's late-burst parameters for about ``fraction`` of the cycles late."""
+    return dict(late_bursts(SUITES["delay"].robot, fraction, BURSTS_SEED))
 
 
-def burst_draws(probability: float, cycles: int, seed: int = BURSTS_SEED) -> tuple[int, int]:
+def burst_draws(fraction: float, cycles: int) -> tuple[int, int]:
     """(bursts started, cycles late) in the first ``cycles`` plant steps: the plant's own
-    draws (:class:`cr_sim.transport_delay.TransportDelay` with the same seed)."""
+    draws (:class:`cr_sim.transport_delay.TransportDelay` with the same parameters)."""
     from cr_sim.transport_delay import TransportDelay
 
-    delay = TransportDelay(0, probability, BURST_CYCLES, seed)
+    p = bursts(fraction)
+    delay = TransportDelay(0, p["late_burst_probability"],
+                           (p["late_burst_min_cycles"], p["late_burst_max_cycles"]),
+                           p["late_burst_seed"])
     command = np.zeros(1)
     for _ in range(cycles):
         delay(command)
     return delay.bursts, delay.late_cycles
 
 
-def note_bursts(probability: float):
+def note_bursts(fraction: float):
     """A send that notes the bursts the session's plant draws over its run."""
     def send(intruder) -> None:
         session = intruder.session
         cycles = round(session.cfg.duration * ROBOTS[intruder.robot or "panda_ft"].rate_hz)
-        started, late = burst_draws(probability, cycles)
+        started, late = burst_draws(fraction, cycles)
         intruder.notes.append(f"the plant's draws: {started} burst(s), {late} of {cycles} "
                               f"cycles late ({100.0 * late / cycles:.1f} %)")
     return send
@@ -73,11 +75,11 @@ CASES = [
          nothing, suite="delay"),
     _delay_case("delay_3_cycles", f"the driver applies every command {DELAY_CYCLES} cycles late "
                 "(plant command_delay_cycles; the profile's 1)", command_delay_cycles=DELAY_CYCLES),
-    _delay_case("late_bursts_1pct", "late bursts of 20-70 cycles, ~1 % of the cycles late "
-                f"(start probability {BURSTS_1PCT:g} per cycle)", note_bursts(BURSTS_1PCT),
+    _delay_case("late_bursts_1pct", "late bursts of 20-70 cycles, ~1 % of the cycles late",
+                note_bursts(BURSTS_1PCT),
                 **bursts(BURSTS_1PCT)),
-    _delay_case("late_bursts_5pct", "late bursts of 20-70 cycles, ~5 % of the cycles late "
-                f"(start probability {BURSTS_5PCT:g} per cycle)", note_bursts(BURSTS_5PCT),
+    _delay_case("late_bursts_5pct", "late bursts of 20-70 cycles, ~5 % of the cycles late",
+                note_bursts(BURSTS_5PCT),
                 **bursts(BURSTS_5PCT)),
     _delay_case("delay_3_late_bursts_1pct", f"{DELAY_CYCLES} cycles of delay and late bursts, "
                 "~1 % of the cycles late", note_bursts(BURSTS_1PCT),
