@@ -49,15 +49,16 @@ def _same_blocks(views, layout, vector):
 def test_reference_blocks_are_where_the_kernels_read_them(m, n):
     """The views the kernels take are the Layout's blocks, and both sit where the
     hand-written offsets had them (the guard's state at 3 m + n + 15, its gains at
-    4 m + 8 + n; sizes 5 m + n + 16 + G_s and 4 m + 10 + n + G_g)."""
+    4 m + 8 + n; sizes 5 m + n + 16 + G_s and 4 m + 11 + n + G_g)."""
     gains_size, state_size = guard.guard_sizes(m)
     gains, state = reference_gains(m, n), reference_state(m, n)
     assert state.offset("guard") == 3 * m + n + 15
     assert state.offset("n_f") == 3 * m + n + 15 + state_size
     assert state.size == 5 * m + n + 16 + state_size
     assert gains.offset("guard") == 4 * m + 8 + n
-    assert gains.offset("target_max_speed") == gains.size - 2
-    assert gains.size == 4 * m + 10 + n + gains_size
+    assert gains.offset("target_max_speed") == gains.size - 3
+    assert gains.offset("reference_ramp_time") == gains.size - 1
+    assert gains.size == 4 * m + 11 + n + gains_size
     vector = np.arange(float(state.size + 3))          # + 3: the scheme's own state after it
     views, end = reference_state_views(vector, m, n)
     assert end == state.size

@@ -180,6 +180,27 @@ def test_force_ramp_starts_from_zero():
     assert np.all(np.diff(f_d) >= -1e-12)
 
 
+def test_a_path_ramped_in_starts_from_rest():
+    """The robots' circle (r_d' = a w along y at its start) runs on a time whose rate is
+    ramped in over reference_ramp_time: r_d' and r_d'' start at 0 and r_d' changes by at most
+    (a w^2 + 1.5 a w / T) dt per cycle (no step); from T on r_d is the circle T / 2 later."""
+    T, a, w = 1.0, robots.WIPE_RADIUS, robots.WIPE_FREQUENCY
+    r = run_scheme("adaptive_impedance", T + 0.5, {"approach_speed": 0.0,
+                                                   "reference_ramp_time": T}, robot="panda")
+    v = np.column_stack([r.column(f"v_d_{c}") for c in "xy"])
+    acc = np.column_stack([r.column(f"a_d_{c}") for c in "xy"])
+    assert np.abs(v[0]).max() == 0.0 and np.abs(acc[0]).max() == 0.0
+    assert np.abs(np.diff(v, axis=0)).max() < (a * w * w + 1.5 * a * w / T) * 1e-3
+    assert np.abs(np.diff(acc, axis=0)).max() < 0.01 * a * w * w
+    late = r.time >= T
+    tau = r.time[late] - 0.5 * T
+    start = np.array([r.column(f"r_d_{c}")[0] for c in "xy"])
+    circle = start[:, None] + a * np.array([1.0 - np.cos(w * tau), -np.sin(w * tau)])
+    assert np.abs(np.column_stack([r.column(f"r_d_{c}")[late] for c in "xy"])
+                  - circle.T).max() < 1e-12
+    assert np.abs(np.hypot(*v[late].T) - a * w).max() < 1e-12
+
+
 # -- joints and refusals ---------------------------------------------------------------------------
 def test_joint_names_set_the_command_order():
     """joint_names may permute the chain's joints (a forward_command_controller's order):

@@ -9,7 +9,17 @@ Three sources, one after the other:
        r_d''  = amplitude * w^2 cos(w t + phase)
 
    The thesis's paths are absolute; on any other robot the default is relative with zero
-   amplitude: the controller holds the position it starts in.
+   amplitude: the controller holds the position it starts in. A path that starts moving
+   (the wiping circle: r_d' = a w along one axis at t = 0) starts from rest when
+   ``reference_ramp_time`` T > 0: it runs on its own time tau, whose rate is ramped in,
+
+       tau' = S(t / T),  S(x) = 3 x^2 - 2 x^3 (1 from t = T on),
+       tau  = T (x^3 - x^4 / 2) for x = t / T <= 1, t - T / 2 after,
+       r_d(tau),  r_d' tau',  r_d'' tau'^2 + r_d' tau''   (tau'' = 6 x (1 - x) / T),
+
+   so r_d' and r_d'' start at zero instead of stepping when contact is found (a step the
+   chapter 3 laws answered with 3-5 N m on the Panda's joints), and the path lags its
+   unramped self by T / 2 from then on. T = 0: the thesis's path, at full speed from t = 0.
 2. A target pose (``~/target_pose``): from the first one on, r_d follows the latest target
    through a critically damped filter of natural frequency w_f (``target_filter_frequency``),
 
@@ -107,6 +117,10 @@ def reference_parameters(m: int, offset: list[float], amplitude: list[float],
               "nonnegative", bound=Bound.MOTION_FREQUENCY),
         Param("reference_relative", relative, "r_d's offset is relative to the tip position at "
               "the first state (true) or absolute in the base frame (false).", "bool"),
+        Param("reference_ramp_time", 0.0, "The path starts from rest: its own time runs at a "
+              "rate ramped in over this time (s; smoothstep, so r_d' and r_d'' start at 0 and "
+              "the path lags by half of it from then on); 0 = at full speed from the start, as "
+              "in the thesis. Set at start.", "nonnegative", bound=Bound.TIME, read_only=True),
         *force,
         Param("force_ramp_time", 0.0, "The desired force is ramped in over this time from the "
               "first state (s; smoothstep 3 s^2 - 2 s^3, no jump in f_d or its rate); 0 = at "
@@ -162,7 +176,7 @@ ReferenceGains = namedtuple("ReferenceGains", [
     "reference_offset", "reference_amplitude", "reference_phase", "reference_frequency",
     "reference_relative", "desired_force", "force_ramp_time", "target_filter_frequency",
     "force_admittance_mass", "force_admittance_damping", "force_admittance_limit", "posture",
-    "posture_given", "guard", "target_max_speed", "target_force_rate"])
+    "posture_given", "guard", "target_max_speed", "target_force_rate", "reference_ramp_time"])
 
 #: The desired motion's internal state, block by block: started (0/1), the start position,
 #: orientation and joint positions, the last target pose's counter, the target filter
@@ -193,10 +207,11 @@ def reference_gains_views(gains, m, n):
     guard_gains, k = take(gains, k, guard.guard_sizes(m)[0])
     max_speed, k = take(gains, k, 1)
     force_rate, k = take(gains, k, 1)
+    path_ramp_time, k = take(gains, k, 1)
     return ReferenceGains(offset, amplitude, phase, frequency, relative, desired_force,
                           ramp_time, filter_frequency, admittance_mass, admittance_damping,
                           admittance_limit, posture, posture_given, guard_gains, max_speed,
-                          force_rate), k
+                          force_rate, path_ramp_time), k
 
 
 @njit(cache=True, error_model="numpy")
@@ -261,6 +276,18 @@ def cosine_reference(offset, amplitude, phase, w, t):
         v[i] = amplitude[i] * w * s
         a[i] = amplitude[i] * w * w * c
     return r, v, a
+
+
+@njit(cache=True, error_model="numpy")
+def path_time(t, ramp):
+    """(tau, tau', tau'') of the path's own time at t, its rate ramped in over ``ramp`` s
+    (module docstring, source 1; ``ramp`` 0: tau = t)."""
+    if ramp <= 0.0:
+        return t, 1.0, 0.0
+    if t >= ramp:
+        return t - 0.5 * ramp, 1.0, 0.0
+    x = max(t, 0.0) / ramp
+    return ramp * x * x * x * (1.0 - 0.5 * x), smoothstep(x), 6.0 * x * (1.0 - x) / ramp
 
 
 @njit(cache=True, error_model="numpy")
@@ -423,8 +450,11 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force, pace=1.0)
     offset = g.reference_offset.copy()
     if g.reference_relative[0] > 0.0:
         offset += s.r_start
+    tau, tau_dot, tau_ddot = path_time(t_path, g.reference_ramp_time[0])
     r_d, v_d, a_d = cosine_reference(offset, g.reference_amplitude, g.reference_phase,
-                                     g.reference_frequency[0], t_path)
+                                     g.reference_frequency[0], tau)
+    a_d = a_d * (tau_dot * tau_dot) + v_d * tau_ddot
+    v_d = v_d * tau_dot
     quat_d, w_d = s.quat_f.copy(), s.w_f.copy()
     w_f = g.target_filter_frequency[0]
     v_max = g.target_max_speed[0] * pace
