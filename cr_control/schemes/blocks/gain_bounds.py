@@ -477,6 +477,11 @@ LAW_RULES = (
             "plant", lambda v, T, M: (0.0, gain_size(v["K_s"]) * T / M)),
     LawRule("the compensator z' = D z + ... (3.40), whose K_2 z' drives r_eq'' (3.50) through "
             "the arm", ("D",), "plant", lambda v, T, M: (0.0, gain_size(v["D"]) * T)),
+    LawRule("the G_r network's adaptation (3.81): G_r^' = Gamma_G |xi|^2 s, a stiffness on s "
+            "beside K_s through the task's lightest inertia (|xi|^2 <= rbf_max_nodes: every "
+            "activation (3.69) is at most 1)", ("Gamma_G", "K_s", "rbf_max_nodes"), "plant",
+            lambda v, T, M: (gain_size(v["Gamma_G"]) * float(v["rbf_max_nodes"]) * T * T / M,
+                             gain_size(v["K_s"]) * T / M)),
     LawRule("the force admittance m_a delta'' + d_a delta' = f_d - f through the arm",
             ("force_admittance_mass", "force_admittance_damping"), "plant",
             lambda v, T, M: (0.0, float(v["force_admittance_damping"]) * T
