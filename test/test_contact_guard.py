@@ -172,11 +172,13 @@ LAW_ALONE_STIFFNESS = 5e5
 def chatter_case(monitor: bool, supervise: bool = True, stiffness: float | None = None,
                  errors: list | None = None):
     """config/panda_stiff_table.yaml offline: with the plant's supervision and command
-    limits as in a session (``supervise``), or the law alone on the plant; the controller's
-    error lines into ``errors``."""
+    limits as in a session (``supervise``), or the law alone on the plant (no start check
+    either); the controller's error lines into ``errors``."""
     from cr_control.tools.session import _load_params_file, config_file
     params = _load_params_file(config_file("panda_stiff_table.yaml"))
     ctrl = {**params["adaptive_impedance"], "stability_monitor": monitor}
+    if not supervise:
+        ctrl["start_check_time"] = 0.0
     plant = {k: v for k, v in params["plant"].items() if k != "scenario"}
     if stiffness is not None:
         plant["stiffness"] = stiffness
@@ -197,10 +199,11 @@ def test_the_chatter_case_runs_through_with_the_monitor_and_stops_without():
     """config/panda_stiff_table.yaml as a session runs it (the plant's reflexes and its
     1 kN m/s torque-rate limit; a lockstep session gives the same numbers): with the monitor
     it reacts at 0.156 s and the whole 8 s run through at 10 N (peak 15.6 N, <= 0.01 N RMS
-    from 2 s); without it the contact chatters (6.6 N RMS) and the controller's start check
-    stops it at 0.29 s, naming the chatter, not gravity. On 5e5 N/m (the case before) the
-    rate-limited torques could not follow the monitor's answer: the 50 N reflex stopped it
-    at 0.51 s with the monitor and 0.26 s without."""
+    from 2 s); without it the contact chatters (2.0 N RMS by 0.112 s, its sign changing as
+    chatter does) and the controller's start check stops it then, naming the chatter, not
+    gravity (by the tip's speed alone it stopped at 0.29 s, after 30 N peaks). On 5e5 N/m
+    (the case before) the rate-limited torques could not follow the monitor's answer: the
+    50 N reflex stopped it at 0.51 s with the monitor and 0.26 s without."""
     errors: list[str] = []
     on, off = chatter_case(True), chatter_case(False, errors=errors)
     assert on.safe_stop_reason == 0 and on.true_force[:, 2].max() < 20.0
@@ -232,8 +235,8 @@ def longest_loss_s(run, start: float) -> float:
 
 
 def test_monitor_calms_the_stiff_table():
-    """The law alone (no reflexes, no command limits) on the chatter case's gains and a
-    5e5 N/m table: without the monitor the tool bounces on the table
+    """The law alone (no reflexes, no command limits, no start check) on the chatter case's
+    gains and a 5e5 N/m table: without the monitor the tool bounces on the table
     (measured: 12.8-13.9 N RMS over every 2 s window, contact lost up to 14 ms at a time,
     44 N peaks; 20.3-20.4 N RMS and 66 N before the force admittance was held to
     approach_speed out of contact); with it the monitor reacts within the force ramp and

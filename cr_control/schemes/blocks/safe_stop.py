@@ -23,7 +23,14 @@ controller that adds g(q) on a robot that adds it too lifts the arm against grav
 that leaves it out on a robot that does not lets the arm fall: the direction of the tip's
 velocity error along gravity names the likely cause. A law asked a contact force at once
 (``approach_speed`` 0) pushes the tip through free space: then that is named first. The
-brake then holds gravity only if the robot likely does not.
+brake then holds gravity only if the robot likely does not. With the contact-stability
+monitor off (``stability_monitor`` false), a contact force that oscillates in that time as
+the monitor would detect it (above ``stability_threshold``, changing sign at least
+MONITOR_MIN_CROSSINGS times a second: not an impact's ring-out) stops the controller too,
+naming the chatter: behind a
+position servo a bouncing tool need not move its tip fast enough for the speed check (a
+Panda on its position interface bounced on a 100 kN/m table for 10 s, contact lost every
+cycle of the bounce, its tip never 0.15 m/s off its reference).
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ import numpy as np
 
 from cr_control.core.parameters import Bound, Param
 from cr_control.models.brake import brake_torque
+from cr_control.schemes.blocks.contact_guard import MONITOR_MIN_CROSSINGS
 
 #: The start check also stops a joint faster than this fraction of its URDF velocity limit
 #: (braking then keeps every joint below half its limit).
@@ -71,14 +79,16 @@ class Mismatch:
 
 def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.ndarray,
                 joint_speed: np.ndarray, joint_names: list[str], velocity_limit: np.ndarray,
-                values: dict, contact_rms: float = 0.0) -> Mismatch | None:
+                values: dict, contact_rms: float = 0.0,
+                contact_crossings: float = 0.0) -> Mismatch | None:
     """The start check at controller time ``t`` (module docstring): None while it passes.
 
     ``tip_speed_error`` = r' - r_d' (base frame, the position axes), ``gravity`` the same
     axes of the gravity vector, ``joint_speed`` q' and ``velocity_limit`` (inf: none) in
     ``joint_names`` order; ``contact_rms`` the contact-stability monitor's oscillation RMS
     (N): above its ``stability_threshold`` the tip bounces on a contact, and the cause named
-    is that, not gravity."""
+    is that, not gravity; ``contact_crossings`` its filtered force's sign changes per second
+    (with the monitor off, chatter by the monitor's rule stops the controller too)."""
     window = values["start_check_time"]
     if not 0.0 <= t < window:
         return None
@@ -87,8 +97,18 @@ def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.
             for w, name, lim in zip(joint_speed, joint_names, velocity_limit, strict=True)
             if 0.0 < lim < math.inf and abs(w) > JOINT_SPEED_FRACTION * lim]
     limit = values["start_speed_error"]
+    threshold = values.get("stability_threshold", math.inf)
+    chatters = (not values.get("stability_monitor", True) and contact_rms > threshold
+                and contact_crossings >= MONITOR_MIN_CROSSINGS)
     if speed <= limit and not fast:
-        return None
+        if not chatters:
+            return None
+        return Mismatch(
+            f"{scheme}: the contact force oscillates ({contact_rms:.3g} N RMS, above "
+            f"stability_threshold {threshold:g} N) at t = {t:.3f} s with stability_monitor off "
+            "(start check): the contact is too stiff for these gains; turn stability_monitor "
+            "on, or lower the gains. Braking until reactivated",
+            not bool(values["robot_compensates_gravity"]))
     g_norm = math.sqrt(float(gravity @ gravity))
     along = float(tip_speed_error @ gravity) / g_norm if g_norm > 0.0 else 0.0
     robot_adds = bool(values["robot_compensates_gravity"])

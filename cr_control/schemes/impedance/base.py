@@ -358,6 +358,7 @@ class TaskSpaceController(Controller):
         #: events already logged (:meth:`_log_guard_events`).
         self._guard_at = self.reference_state.offset("guard")
         self._events_at = self._guard_at + contact_guard.guard_state(m).offset("events")
+        self._crossings_at = self._guard_at + contact_guard.guard_state(m).offset("crossings")
         self._events_seen = 0.0
         self._guard_seen = contact_guard.event_state(self.internal, self._guard_at, m)
         self._hold_data = None
@@ -668,7 +669,8 @@ class TaskSpaceController(Controller):
         error = views.status[self._i_tip_v] - views.reference[self._i_ref_v]
         mismatch = safe_stop.start_check(self.scheme, t, error, self._gravity_axes, v,
                                          list(self.model.joint_names), self._velocity_limit,
-                                         self.values, views.status[self._i_oscillation])
+                                         self.values, views.status[self._i_oscillation],
+                                         self.internal[self._crossings_at])
         if mismatch is not None:
             self._brake_holds_gravity = mismatch.brake_holds_gravity
             self.give_up(mismatch.message)
