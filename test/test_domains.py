@@ -57,13 +57,14 @@ def test_next_domain_ids_are_test_ids_and_distinct():
 
 
 def test_a_held_domain_is_refused_and_freed_when_its_holder_dies():
-    proc, domain = holder()
+    # ids no other test claims: the id freed by the kill is not taken by another worker first
+    proc, domain = holder(str(UNUSED_DOMAIN + 1))
     try:
         assert domain_in_use(domain)
         with pytest.raises(DomainBusyError, match=rf"ROS_DOMAIN_ID {domain} is in use .*pid {proc.pid}"):
             claim_domain(domain)
-        taken = claim_free_domain(TEST_FIRST_DOMAIN, TEST_DOMAIN_SPAN, start=domain)
-        assert taken.domain_id != domain                    # skips the held one
+        taken = claim_free_domain(domain, 2, start=domain)
+        assert taken.domain_id == domain + 1                # skips the held one
         taken.release()
     finally:
         proc.send_signal(signal.SIGKILL)                    # no clean-up: the kernel frees it

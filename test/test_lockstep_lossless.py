@@ -82,11 +82,12 @@ def test_a_stopped_recorder_loses_nothing_in_lockstep(tmp_path):
         time.sleep(0.3)
         recorder = session.processes["recorder"].pid
         os.kill(recorder, signal.SIGSTOP)
-        # ~2400 states' time at lockstep speed, 5 writer histories: without the waits it
-        # loses hundreds per topic. Under a second: Fast DDS (2.14.5) declares the
+        # ~1200 states' time at lockstep speed, well past the pacer's 250: without the waits
+        # it loses hundreds per topic. Well under a second: Fast DDS (2.14.5) declares the
         # shared-memory port of a process frozen for longer dead (healthy_check_timeout_ms,
-        # 1 s), and a writer that saw it so never delivers to that reader again.
-        time.sleep(0.8)
+        # 1 s), and a writer that saw it so never delivers to that reader again; 0.8 s left
+        # a descheduled test process 0.2 s before that.
+        time.sleep(0.4)
         os.kill(recorder, signal.SIGCONT)
     finally:
         runner.join()
