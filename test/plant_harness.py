@@ -3,12 +3,14 @@ that keeps every line, a fixture making started nodes in contexts of their own, 
 
 import os
 import time
+from unittest import mock
 
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
+from cr_sim import plant_node
 from cr_sim.plant_node import PlantNode
 
 PERIOD = 1e-3
@@ -58,6 +60,14 @@ def make_node():
 
 
 def tick(node: PlantNode, periods: int = 1) -> None:
-    """Run the realtime node's tick as if ``periods`` periods of wall time had passed."""
-    node._last_tick = time.monotonic() - periods * PERIOD
-    node._tick()
+    """Run the realtime node's tick as if exactly ``periods`` periods of wall time had passed
+    since its last: the tick reads a clock of the node's own (the plant node's
+    ``time.monotonic`` for this call), which only ticks advance, so a test process
+    descheduled between ticks adds no time (the watchdog's wall-time rule, 200 ms, and the
+    catch-up's periods see the ticks alone)."""
+    last = getattr(node, "_harness_clock", None)
+    last = time.monotonic() if last is None else last
+    now = last + periods * PERIOD
+    node._last_tick, node._harness_clock = last, now
+    with mock.patch.object(plant_node.time, "monotonic", lambda: now):
+        node._tick()

@@ -4,12 +4,12 @@ tick then only publishes, and the states are exactly those of stepping the plant
 the commands the node applied."""
 
 import os
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import rclpy
+from plant_harness import tick
 from rclpy.context import Context
 from rclpy.serialization import serialize_message
 from robot_data import needs_erd
@@ -36,12 +36,6 @@ def reference_plant():
     """A second plant of the node's default scenario, with default parameters."""
     specs, factory = SCENARIOS["compliant_plane"]
     return factory({p.name: p.default for p in specs})
-
-
-def tick(node: PlantNode, periods: int) -> None:
-    """Run the node's tick as if ``periods`` periods of wall time had passed."""
-    node._last_tick = time.monotonic() - periods * PERIOD
-    node._tick()
 
 
 def answer(node: PlantNode, effort: list[float], stamp: int | None = None) -> None:
