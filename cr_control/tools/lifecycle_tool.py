@@ -20,7 +20,9 @@ a stale command. A controller without a brake stops commanding: the plant takes 
 only after the first has been silent for its ``command_handover_cycles`` (50 ms by
 default), so ``--handover`` (seconds between the two transitions, default 0) should then
 be at least that. Start it before the plant runs: its clock starts
-with the first state it sees. Node names and ``--domain-id``/``--timeout`` as in cr_param.
+with the first state it sees; with ``--plant-time``, ``--at`` is the states' own stamp (a
+lockstep plant stamps its time from 0: ``cr_session`` passes it in lockstep, so the switch
+lands at ``--switch-at`` however late the tool subscribes). Node names and ``--domain-id``/``--timeout`` as in cr_param.
 Exit status: 0 done, 1 a transition refused, 2 usage or connection error.
 """
 
@@ -112,9 +114,10 @@ class Lifecycle:
         if not self._call(ChangeState, f"{target}/change_state", request).success:
             raise TransitionRefusedError(f"{target} refused {transition} (it is {self.state(target)})")
 
-    def wait_for_time(self, at_s: float) -> float:
-        """Block until a /joint_states stamp is ``at_s`` after the first one seen; that
-        stamp's offset (s)."""
+    def wait_for_time(self, at_s: float, absolute: bool = False) -> float:
+        """Block until a /joint_states stamp is ``at_s`` after the first one seen (or, with
+        ``absolute``, at least ``at_s``: a lockstep plant stamps its states from 0); that
+        stamp's offset (s; its stamp with ``absolute``)."""
         # lazy: ROS is loaded only when the command talks to a node (cr_control.tools)
         from sensor_msgs.msg import JointState
 
@@ -131,21 +134,26 @@ class Lifecycle:
 
         sub = self.node.create_subscription(JointState, topics.JOINT_STATES, on_state,
                                             CONTROL_QOS, raw=True)
+        def reached() -> bool:
+            return bool(seen) and seen[-1] - (0.0 if absolute else seen[0]) >= at_s
+
         try:
-            while not seen or seen[-1] - seen[0] < at_s:
+            while not reached():
                 self.executor.spin_once(timeout_sec=0.05)
         finally:
             self.node.destroy_subscription(sub)
-        return seen[-1] - seen[0]
+        return seen[-1] - (0.0 if absolute else seen[0])
 
 
-def switch(life: Lifecycle, old: str, new: str, at_s: float, handover_s: float) -> None:
-    """The live switch of the module docstring; prints each step."""
+def switch(life: Lifecycle, old: str, new: str, at_s: float, handover_s: float,
+           absolute: bool = False) -> None:
+    """The live switch of the module docstring; prints each step (``absolute``: ``at_s`` is
+    the plant's time, :meth:`Lifecycle.wait_for_time`)."""
     if life.state(new) == "unconfigured":
         life.change(new, "configure")
     life.prepare(old, new)
     print(f"{new} configured; switching at t = {at_s:g} s", flush=True)
-    reached = life.wait_for_time(at_s)
+    reached = life.wait_for_time(at_s, absolute)
     life.change(old, "deactivate")
     stopped = time.monotonic()
     time.sleep(handover_s)
@@ -170,6 +178,9 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("new")
     sw.add_argument("--at", type=float, default=0.0, metavar="T",
                     help="seconds after the first state seen (default 0: now)")
+    sw.add_argument("--plant-time", action="store_true",
+                    help="--at is the plant's time, the states' stamps (a lockstep plant "
+                         "stamps from 0), not seconds after the first state this tool sees")
     sw.add_argument("--handover", type=float, default=HANDOVER_S, metavar="S",
                     help=f"seconds between deactivating and activating (default {HANDOVER_S:g})")
     return p
@@ -197,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
             life.change(names[0], args.transition)
             print(f"{names[0]}: {args.transition} done, now {life.state(names[0])}")
         else:
-            switch(life, *names, args.at, args.handover)
+            switch(life, *names, args.at, args.handover, args.plant_time)
         return 0
     except TransitionRefusedError as exc:
         print(f"cr_lifecycle: {exc}", file=sys.stderr)

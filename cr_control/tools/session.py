@@ -547,7 +547,11 @@ class Session:
                         self.group.start("switch", [
                             sys.executable, "-m", "cr_control.tools.lifecycle_tool",
                             "--timeout", str(STARTUP_TIMEOUT_S), "switch", cfg.scheme,
-                            cfg.switch_to, "--at", repr(cfg.switch_at)], one_shot=True)
+                            cfg.switch_to, "--at", repr(cfg.switch_at),
+                            # lockstep stamps the plant's time from 0: the switch lands at
+                            # --switch-at however late the tool subscribes
+                            *(["--plant-time"] if cfg.mode == "lockstep" else [])],
+                            one_shot=True)
                     self._start(main, "cr_sim.plant_node")
                 budget = STARTUP_TIMEOUT_S + cfg.duration * (2.0 if cfg.mode == "realtime" else 20.0)
                 try:
