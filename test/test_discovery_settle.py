@@ -35,8 +35,9 @@ def test_the_wait_is_read_from_the_environment(text, expected):
     assert math.isfinite(settle_s(env))
 
 
-def _subscribed_after(env: dict[str, str], *ros_args: str) -> float:
-    """Seconds from the controller's command publisher appearing to its state subscription."""
+def _subscribed_after(env: dict[str, str], *ros_args: str) -> tuple[float, str]:
+    """Seconds from the controller's command publisher appearing to its state subscription
+    (as this process discovers them), and the controller's output."""
     proc = start_node([sys.executable, "-m", "cr_control.nodes.controller_node", NODE], env,
                       *ros_args)
     probe = RosProbe(int(env["ROS_DOMAIN_ID"]))
@@ -45,27 +46,35 @@ def _subscribed_after(env: dict[str, str], *ros_args: str) -> float:
         assert probe.spin_until(lambda: node.count_publishers(topics.JOINT_COMMANDS) > 0, 60)
         commanding = time.monotonic()
         assert probe.spin_until(lambda: node.count_subscribers(topics.JOINT_STATES) > 0, 30)
-        return time.monotonic() - commanding
+        waited = time.monotonic() - commanding
     finally:
         probe.close()
-        stop_node(proc)
+        _, out = stop_node(proc)
+    return waited, out
 
 
 @pytest.mark.ros
 def test_a_realtime_controller_subscribes_to_the_states_only_after_the_wait():
     env = isolated_env(next_domain())
     env[SETTLE_VARIABLE] = str(SETTLE)
-    waited = _subscribed_after(env)
+    waited, out = _subscribed_after(env)
     # Its publishers exist from its start; the subscription comes SETTLE s after the node
-    # was made (the publisher's discovery takes part of that).
-    assert SETTLE - 1.0 < waited < SETTLE + 5.0
+    # was made, by the node's own clock (its log lines' stamps, the first written just after
+    # the timer was made: measured 1.968 s for 2). How much of that this process sees
+    # depends on when it discovers each: not judged.
+    announced = _log_stamp(out, "subscribing to /joint_states in")
+    subscribed = _log_stamp(out, "subscribing to /joint_states now")
+    print(f"subscribed {subscribed - announced:.3f} s after it said so; seen {waited:.3f} s "
+          "after its publisher here")
+    assert subscribed - announced >= SETTLE - 0.25
+    assert waited < SETTLE + 5.0
 
 
 @pytest.mark.ros
 def test_a_lockstep_controller_subscribes_at_once():
     env = isolated_env(next_domain())
     env[SETTLE_VARIABLE] = "30"
-    waited = _subscribed_after(env, "-p", "lockstep:=true")
+    waited, _ = _subscribed_after(env, "-p", "lockstep:=true")
     assert waited < 5.0          # not the 30 s asked for real time
 
 
