@@ -52,7 +52,12 @@ def free_space_session(tmp_path, env: dict[str, str], *overrides: str):
         yield domain[1]
     finally:
         session.send_signal(signal.SIGINT)       # cr_session stops its processes
-        session.communicate(timeout=60)
+        try:
+            session.communicate(timeout=60)
+        except subprocess.TimeoutExpired:        # never left running on its domain
+            session.kill()
+            session.communicate()
+            raise
 
 
 def identify(domain: str, env: dict[str, str], out) -> subprocess.CompletedProcess:
