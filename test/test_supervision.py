@@ -202,13 +202,12 @@ def controller_inputs(expected=("/plant",), lockstep=False, graph=None, advertis
                                position=tuple(float(i + 1) for i in range(n)),
                                velocity=(0.0,) * n)
 
-    def wrench(data):                         # b"wframe,fx,fy,fz[,k]": stamp k ms (default 0)
+    def wrench(data):
         if not data.startswith(b"w"):
             return None
-        frame, *values = data[1:].decode().split(",")
-        k = int(values[3]) if len(values) > 3 else 0
-        return SimpleNamespace(sec=7, nanosec=k * 1_000_000, force=tuple(map(float, values[:3])),
-                               torque=(0.0, 0.0, 0.0), frame_id=frame)
+        frame, *force = data[1:].decode().split(",")
+        return SimpleNamespace(force=tuple(map(float, force)), torque=(0.0, 0.0, 0.0),
+                               frame_id=frame)
 
     readers = Readers(fields, wrench, lambda data: None, lambda data: None, 64, 4, 64, 64)
     inputs = ControllerInputs(readers, ("joint1", "joint2"),
@@ -302,33 +301,3 @@ def test_a_wrench_of_another_frame_or_beyond_max_sensor_force_is_a_sensor_fault(
     inputs.wrench_message(b"not a wrench")
     assert inputs.inputs_oversized == 1 and inputs.sensor_faults == 4
     assert sum("sensor fault" in text for _, text in lines) == 1      # one line per episode
-
-
-def test_a_lockstep_state_waits_for_its_own_wrench():
-    """Lockstep: a state whose wrench (stamped like it, sent just before it) has not come
-    yet (lost on the way and sent again) is answered when it comes, with it; the plant's
-    resend of the state is answered with the last wrench, said once; a wrench that never
-    carried a state's stamp is never waited for; real time answers at once."""
-    from cr_control.supervision.controller_inputs import ANSWER, NOTHING
-
-    inputs, lines = controller_inputs(lockstep=True)
-    inputs.wrench_message(b"w,1,0,0,0")
-    assert inputs.state(s(0), PLANT, None, 0.0) == ANSWER and inputs.force[0] == 1.0
-    assert inputs.completed() is None
-    assert inputs.state(s(1), PLANT, None, 0.001) == NOTHING        # its wrench is late
-    assert inputs.completed() is None
-    inputs.wrench_message(b"w,2,0,0,1")
-    held = inputs.completed()
-    assert held == (s(1), PLANT, None)
-    assert inputs.state(*held, 0.011) == ANSWER and inputs.force[0] == 2.0
-    assert inputs.completed() is None and inputs.stamp == (7, 1_000_000)
-    assert inputs.state(s(2), PLANT, None, 0.012) == NOTHING        # never comes ...
-    assert inputs.state(s(2), PLANT, None, 1.012) == ANSWER         # ... the plant resends
-    assert inputs.force[0] == 2.0 and inputs.completed() is None
-    assert sum("sent again before its own wrench" in text for _, text in lines) == 1
-
-    for lockstep, k in ((True, 0), (False, 1)):                     # never paired; real time
-        inputs, _ = controller_inputs(lockstep=lockstep)
-        inputs.wrench_message(f"w,1,0,0,{k}".encode())
-        assert inputs.state(s(5), PLANT, None, 0.0) == ANSWER
-        assert inputs.state(s(6), PLANT, None, 0.001) == ANSWER and inputs.force[0] == 1.0

@@ -62,7 +62,6 @@ from __future__ import annotations
 import contextlib
 import sys
 import time
-from collections.abc import Callable
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -201,14 +200,11 @@ class ControllerNode(LifecycleNode):
         self.diagnostics = ControllerDiagnostics(self, self.controller, scheme)   # /diagnostics
         self.markers = ControllerMarkers(self, self.controller.reference_fields,   # ~/markers
                                          self.controller.values.get("base_link", "world"))
-        lockstep = values["lockstep"]          # a state may wait for its own wrench, sensors
-        self.create_subscription(WrenchStamped, topics.WRENCH, self._paired(
-            self.inputs.wrench_message) if lockstep else self.inputs.wrench_message,
+        self.create_subscription(WrenchStamped, topics.WRENCH, self.inputs.wrench_message,
                                  CONTROL_QOS, raw=True)
         if self.inputs.sensor_fields:
-            self.create_subscription(Float64MultiArray, topics.PLANT_SENSORS, self._paired(
-                self.inputs.sensors_message) if lockstep else self.inputs.sensors_message,
-                                     CONTROL_QOS, raw=True)
+            self.create_subscription(Float64MultiArray, topics.PLANT_SENSORS,
+                                     self.inputs.sensors_message, CONTROL_QOS, raw=True)
         self._state_sub = None
         settle = 0.0 if values["lockstep"] else discovery_settle.settle_s()
         if settle > 0:      # module docstring of discovery_settle; a timer made up front
@@ -354,16 +350,6 @@ class ControllerNode(LifecycleNode):
         held = self.inputs.named()
         if held is not None:
             self._on_joint_state(*held)
-
-    def _paired(self, read: Callable[[bytes], None]) -> Callable[[bytes], None]:
-        """Lockstep: ``read`` (the wrench's or the sensors' reader), then the state that
-        waited for them answered (:meth:`ControllerInputs.completed`)."""
-        def on_message(data: bytes) -> None:
-            read(data)
-            held = self.inputs.completed()
-            if held is not None:
-                self._on_joint_state(*held)
-        return on_message
 
     def _on_joint_state(self, data: bytes | None, sender: bytes | None = None,
                         length: int | None = None) -> None:

@@ -31,14 +31,6 @@ Guards on /joint_states, in order (each counted in the node's status,
    arrays, which it holds on (logged).
 9. **Plant sensors**: a law that reads /plant/sensors before any has come is told so
    (its inputs are NaN: it holds or uses its fallback).
-10. **The cycle's own wrench and sensors** (lockstep): the plant publishes its wrench and
-   sensors stamped like the state, just before it, but on topics of their own, so a
-   sample lost on the way and sent again (a reliable writer repeats it within its heartbeat
-   period) can arrive after its state. Once the wrench (or the sensors) has carried a
-   state's stamp, a state whose wrench or sensors have not come yet waits for them (the
-   plant waits for its answer) and is answered when they arrive: the same numbers as the
-   offline loop, however the messages were delayed. If they never come, the plant's resend
-   of the state (after ``lockstep_resend_s``) is answered with the last ones, said once.
 
 The wrench (/force_torque_sensor_broadcaster/wrench) and the plant's sensors are guarded
 too: sized, read, and a wrench of another frame than ``sensor_frame`` or whose force is above
@@ -135,13 +127,6 @@ class ControllerInputs:
         self.sensor_fields = tuple(sensor_fields)
         self.sensors_seen = not self.sensor_fields
         self._sensor_cache: tuple[str, list[int] | None] = ("", None)
-        # lockstep: the stamps of the last wrench and sensors (guard 10), whether they
-        # carried a state's stamp yet, and the state waiting for its own
-        self.wrench_stamp: tuple[int, int] | None = None
-        self.sensors_t = float("nan")
-        self._wrench_paired = self._sensors_paired = False
-        self.pending: Held | None = None
-        self._pending_stamp: tuple[int, int] | None = None
 
     # -- counters of the single-source guard ----------------------------------------------
     @property
@@ -203,14 +188,6 @@ class ControllerInputs:
                 "the newest one queued behind them (each skipped state lengthens the law's "
                 "next step)"))
             return NOTHING
-        if self.lockstep and self._inputs_behind(stamp):
-            if stamp != self._pending_stamp:
-                self._pending_stamp, self.pending = stamp, (data, sender, length)
-                return NOTHING
-            self.log("unpaired", "warn", lambda: (
-                f"the state of t = {self.t:.6f} s sent again before its own wrench or "
-                f"sensors came: answered with those of an earlier cycle"))
-        self.pending = self._pending_stamp = None
         self.last_stamp = stamp
         self.position, self.velocity = self.joint_arrays(state)
         if not self.sensors_seen:
@@ -220,24 +197,6 @@ class ControllerInputs:
                 "uses its fallback where it has one)"))
         self.answered = True
         return ANSWER
-
-    def _inputs_behind(self, stamp: tuple[int, int]) -> bool:
-        """Lockstep: whether the wrench or sensors of the state stamped ``stamp`` are still
-        to come (guard 10); only inputs that carried a state's stamp before are waited for."""
-        t = stamp[0] + stamp[1] * 1e-9              # as the plant writes the sensors' stamp
-        if self.wrench_stamp == stamp:
-            self._wrench_paired = True
-        if self.sensors_t == t:
-            self._sensors_paired = True
-        return ((self._wrench_paired and self.wrench_stamp < stamp)
-                or (self._sensors_paired and self.sensors_t < t))
-
-    def completed(self) -> Held | None:
-        """The lockstep state that waited for its wrench and sensors, once they are all
-        here, to be answered now (None if none waits, or still waits)."""
-        if self.pending is None or self._inputs_behind(self._pending_stamp):
-            return None
-        return self.pending
 
     def activate(self) -> Held | None:
         """Lifecycle activation: states are answered from now on, the law afresh; returns
@@ -331,7 +290,6 @@ class ControllerInputs:
                                     self.read.wrench, "a WrenchStamped")
         if wrench is None:
             return
-        self.wrench_stamp = (wrench.sec, wrench.nanosec)   # its cycle's wrench came (guard 10)
         if self.sensor_frame and wrench.frame_id != self.sensor_frame:
             self.sensor_faults += 1
             self.log("sensor frame", "error", lambda: (
@@ -376,7 +334,6 @@ class ControllerInputs:
         if index is not None and len(values) > max(index):
             self.plant_sensors[:] = [values[i] for i in index]
             self.sensors_seen = True
-            self.sensors_t = values[0]
 
     # -- live targets (task-space schemes) ------------------------------------------------
     def target_usable(self, topic: str, frame_id: str, values: Sequence[float],

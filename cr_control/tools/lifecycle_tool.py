@@ -22,7 +22,8 @@ default), so ``--handover`` (seconds between the two transitions, default 0) sho
 be at least that. Start it before the plant runs: its clock starts
 with the first state it sees; with ``--plant-time``, ``--at`` is the states' own stamp (a
 lockstep plant stamps its time from 0: ``cr_session`` passes it in lockstep, so the switch
-lands at ``--switch-at`` however late the tool subscribes). Node names and ``--domain-id``/``--timeout`` as in cr_param.
+lands at ``--switch-at`` however late the tool subscribes). Node names and
+``--domain-id``/``--timeout`` as in cr_param.
 Exit status: 0 done, 1 a transition refused, 2 usage or connection error.
 """
 
