@@ -182,8 +182,8 @@ def test_a_controller_drives_a_ros2_control_robot(ros_env, probe):
                             "-p", f"forward_command_topic:={FORWARD_TOPIC}",
                             "-p", f"joint_names:=[{', '.join(FORWARD_JOINTS)}]",
                             "-p", "state_source:=/stand_in_robot",   # as joint_state_broadcaster
-                            # the stand-in steps on each answer: each state is answered with
-                            # the wrench of its own cycle, however late that arrives
+                            # the stand-in steps on each answer, as a lockstep plant does, and
+                            # stamps its simulated time: no real-time delay watch on it
                             "-p", "lockstep:=true")
     try:
         node = probe.node

@@ -133,17 +133,17 @@ class Lifecycle:
                 seen.append(sec + nanosec * 1e-9)
                 del seen[1:-1]      # the first and the latest
 
+        def time_now() -> float:
+            return seen[-1] - (0.0 if absolute else seen[0])
+
         sub = self.node.create_subscription(JointState, topics.JOINT_STATES, on_state,
                                             CONTROL_QOS, raw=True)
-        def reached() -> bool:
-            return bool(seen) and seen[-1] - (0.0 if absolute else seen[0]) >= at_s
-
         try:
-            while not reached():
+            while not seen or time_now() < at_s:
                 self.executor.spin_once(timeout_sec=0.05)
         finally:
             self.node.destroy_subscription(sub)
-        return seen[-1] - (0.0 if absolute else seen[0])
+        return time_now()
 
 
 def switch(life: Lifecycle, old: str, new: str, at_s: float, handover_s: float,

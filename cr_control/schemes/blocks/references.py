@@ -453,8 +453,9 @@ def desired_motion(rows, gains, state, targets, t, dt, r, R, q, force, pace=1.0)
     tau, tau_dot, tau_ddot = path_time(t_path, g.reference_ramp_time[0])
     r_d, v_d, a_d = cosine_reference(offset, g.reference_amplitude, g.reference_phase,
                                      g.reference_frequency[0], tau)
-    a_d = a_d * (tau_dot * tau_dot) + v_d * tau_ddot
-    v_d = v_d * tau_dot
+    if tau_dot != 1.0 or tau_ddot != 0.0:          # ramping in (never without a ramp)
+        a_d = a_d * (tau_dot * tau_dot) + v_d * tau_ddot
+        v_d = v_d * tau_dot
     quat_d, w_d = s.quat_f.copy(), s.w_f.copy()
     w_f = g.target_filter_frequency[0]
     v_max = g.target_max_speed[0] * pace

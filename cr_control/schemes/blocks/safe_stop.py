@@ -27,10 +27,9 @@ brake then holds gravity only if the robot likely does not. With the contact-sta
 monitor off (``stability_monitor`` false), a contact force that oscillates in that time as
 the monitor would detect it (above ``stability_threshold``, changing sign at least
 MONITOR_MIN_CROSSINGS times a second: not an impact's ring-out) stops the controller too,
-naming the chatter: behind a
-position servo a bouncing tool need not move its tip fast enough for the speed check (a
-Panda on its position interface bounced on a 100 kN/m table for 10 s, contact lost every
-cycle of the bounce, its tip never 0.15 m/s off its reference).
+naming the chatter: behind a position servo a bouncing tool need not move its tip fast
+enough for the speed check (a Panda on its position interface bounced on a 100 kN/m table
+for 10 s, contact lost every cycle of the bounce, its tip never 0.15 m/s off its reference).
 """
 
 from __future__ import annotations
@@ -97,6 +96,7 @@ def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.
             for w, name, lim in zip(joint_speed, joint_names, velocity_limit, strict=True)
             if 0.0 < lim < math.inf and abs(w) > JOINT_SPEED_FRACTION * lim]
     limit = values["start_speed_error"]
+    robot_adds = bool(values["robot_compensates_gravity"])
     threshold = values.get("stability_threshold", math.inf)
     chatters = (not values.get("stability_monitor", True) and contact_rms > threshold
                 and contact_crossings >= MONITOR_MIN_CROSSINGS)
@@ -107,11 +107,9 @@ def start_check(scheme: str, t: float, tip_speed_error: np.ndarray, gravity: np.
             f"{scheme}: the contact force oscillates ({contact_rms:.3g} N RMS, above "
             f"stability_threshold {threshold:g} N) at t = {t:.3f} s with stability_monitor off "
             "(start check): the contact is too stiff for these gains; turn stability_monitor "
-            "on, or lower the gains. Braking until reactivated",
-            not bool(values["robot_compensates_gravity"]))
+            "on, or lower the gains. Braking until reactivated", not robot_adds)
     g_norm = math.sqrt(float(gravity @ gravity))
     along = float(tip_speed_error @ gravity) / g_norm if g_norm > 0.0 else 0.0
-    robot_adds = bool(values["robot_compensates_gravity"])
     what = (f"the tip moves {speed:.3g} m/s off its reference at t = {t:.3f} s (start check: "
             f"{limit:g} m/s)")
     if fast:

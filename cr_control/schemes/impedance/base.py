@@ -357,8 +357,9 @@ class TaskSpaceController(Controller):
         #: Where the guard's state starts in ``internal``, its event counter and the
         #: events already logged (:meth:`_log_guard_events`).
         self._guard_at = self.reference_state.offset("guard")
-        self._events_at = self._guard_at + contact_guard.guard_state(m).offset("events")
-        self._crossings_at = self._guard_at + contact_guard.guard_state(m).offset("crossings")
+        guard_state = contact_guard.guard_state(m)
+        self._events_at = self._guard_at + guard_state.offset("events")
+        self._crossings_at = self._guard_at + guard_state.offset("crossings")
         self._events_seen = 0.0
         self._guard_seen = contact_guard.event_state(self.internal, self._guard_at, m)
         self._hold_data = None
