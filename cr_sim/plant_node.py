@@ -71,7 +71,7 @@ from cr_control.nodes.lockstep import ReaderPacer, wait_for_readers
 from cr_control.nodes.qos import CONTROL_QOS, PUBLISH_QOS, READY_QOS
 from cr_control.nodes.raw_messages import JointStateReader
 from cr_control.nodes.ros_parameters import declare, police_changes
-from cr_control.nodes.spin import quiet_on_shutdown, spin_nodes, start_nodes
+from cr_control.nodes.spin import help_asked, node_usage, quiet_on_shutdown, spin_nodes, start_nodes
 from cr_control.nodes.state_source import publisher_node
 from cr_control.supervision.plant_commander import COMMANDER_PARAMETER
 from cr_control.supervision.single_source import expected_names, full_node_name
@@ -444,7 +444,15 @@ class PlantNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the plant node (exit 1 with one line on stderr if it refuses to start)."""
-    nodes = start_nodes("plant", list(sys.argv if args is None else args), lambda: [PlantNode()])
+    argv = list(sys.argv if args is None else args)
+    if help_asked(argv):
+        print(node_usage("plant", f"A simulated plant on the topic contract (scenario: one of "
+                         f"{', '.join(sorted(SCENARIOS))}).",
+                         "the params files config/plant_*.yaml (the thesis's scenarios) and "
+                         "config/robots/ROBOT/plant.yaml list them with their defaults, bounds "
+                         "and meanings."))
+        return 0
+    nodes = start_nodes("plant", argv, lambda: [PlantNode()])
     if nodes is None:
         return 1
     spin_nodes(nodes, until=nodes[0].finished)

@@ -20,7 +20,7 @@ import pytest
 from test_clean_errors import error_line
 
 from cr_control.core import ros_yaml
-from cr_control.nodes.spin import params_files
+from cr_control.nodes.spin import help_asked, params_files
 from cr_control.tools import param_tool
 from cr_control.tools.session import Session, SessionConfig, SessionError
 
@@ -207,6 +207,21 @@ def test_node_refuses_empty_params_file(tmp_path, ros_env, node, text):
     assert proc.returncode == 1
     assert error_line(proc) == (f"{node}: refused to start: params file {params} is empty, no node's "
                                 f"parameters (expected '{ros_yaml.PARAMS_FILE_FORM}')")
+
+
+@pytest.mark.parametrize("node", ["plant", SCHEME, "controller_node"])
+def test_node_help_prints_its_usage_and_starts_nothing(ros_env, node):
+    """``-h`` / ``--help`` before ``--ros-args``: the usage on stdout, exit 0, no node (a
+    started node would run until the timeout); after ``--ros-args`` it is rcl's."""
+    args = NODES[node] if node != "controller_node" else ("cr_control.nodes.controller_node",)
+    proc = run(*args, "--help", env=ros_env)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    usage = proc.stdout.splitlines()[0]
+    assert usage.startswith(f"usage: {node} ") and "--ros-args" in usage, usage
+    if node != "controller_node":
+        assert "Parameters: config/" in proc.stdout
+    assert help_asked(["x", "--ros-args", "-p", "a:=1", "--", "-h"])
+    assert not help_asked(["x", "--ros-args", "--help"])
 
 
 def test_params_files_are_read_from_ros_args_only():

@@ -93,7 +93,7 @@ from cr_control.nodes.raw_messages import (
     joint_state_names,
 )
 from cr_control.nodes.ros_parameters import ParameterError, declare, police_changes
-from cr_control.nodes.spin import RCLError, quiet_on_shutdown, spin_nodes, start_nodes
+from cr_control.nodes.spin import RCLError, help_asked, node_usage, quiet_on_shutdown, spin_nodes, start_nodes
 from cr_control.nodes.state_source import StateSourceWatch, publisher_node
 from cr_control.schemes.registry import SCHEMES, controller_class
 from cr_control.supervision.controller_inputs import (
@@ -429,11 +429,20 @@ def main(scheme: str | None = None, args: list[str] | None = None) -> int:
     """
     argv = list(sys.argv if args is None else args)
     if scheme is None:
+        if len(argv) >= 2 and argv[1] in ("-h", "--help"):
+            print(f"usage: controller_node SCHEME [--ros-args ...]; schemes: {sorted(SCHEMES)}")
+            return 0
         if len(argv) < 2 or argv[1] not in SCHEMES:
             print(f"usage: controller_node SCHEME [--ros-args ...]; schemes: {sorted(SCHEMES)}",
                   file=sys.stderr)
             return 2
         scheme = argv.pop(1)
+    if help_asked(argv):
+        print(node_usage(scheme, f"The {scheme} controller: answers each state on "
+                         f"{topics.JOINT_STATES} with a command on {topics.JOINT_COMMANDS}.",
+                         f"config/{scheme}.yaml lists every one with its default, bound and "
+                         f"meaning; a robot's: config/robots/ROBOT/{scheme}.yaml."))
+        return 0
     np.seterr(all="ignore")     # Controller.step catches and logs non-finite results
     nodes = start_nodes(scheme, argv, lambda: [ControllerNode(scheme)])
     if nodes is None:

@@ -149,6 +149,29 @@ def refuse_empty_params_files(label: str, argv: Sequence[str]) -> bool:
     return False
 
 
+def help_asked(argv: Sequence[str]) -> bool:
+    """True if ``argv`` (the program name first) asks for ``-h`` / ``--help`` outside its
+    ``--ros-args`` parts: a node executable then prints its usage and starts nothing."""
+    ros_args = False
+    for arg in argv[1:]:
+        if arg == "--ros-args":
+            ros_args = True
+        elif arg == "--":
+            ros_args = False
+        elif not ros_args and arg in ("-h", "--help"):
+            return True
+    return False
+
+
+def node_usage(program: str, what: str, params_hint: str) -> str:
+    """The usage text of a node executable: how it is started, what it does, where its
+    parameters are documented."""
+    return (f"usage: {program} [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] "
+            f"[-r __ns:=/NAMESPACE]]\n\n{what}\n\nParameters: {params_hint}\n"
+            "Run it with ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE set for your network; "
+            "Ctrl-C stops it.")
+
+
 def start_nodes(label: str, argv: list[str], make: Callable[[], list[Node]]) -> list[Node] | None:
     """``rclpy.init(argv)`` and ``make()`` the nodes; on a refused start (also an empty
     params file: :func:`refuse_empty_params_files`) print ``<label>: refused to start:
