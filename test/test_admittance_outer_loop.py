@@ -41,6 +41,7 @@ import math
 
 import numpy as np
 import pytest
+from lockstep_replay import as_read
 from robot_data import needs_erd
 
 from cr_control import offline, robots
@@ -341,9 +342,10 @@ def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
                         domain_id=next_domain(), name="run", robot=robot,
                         overrides=["plant.ft_noise_std=[0.0, 0.0]"])
     s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
-    run = offline.run_scheme(scheme, duration, robot=robot,
-                             plant_overrides={"ft_noise_std": [0.0, 0.0]})
     rate = robots.robot(robot).rate_hz
+    run = as_read(s.status, rate, round(duration * rate), lambda ages: offline.run_scheme(
+        scheme, duration, robot=robot, plant_overrides={"ft_noise_std": [0.0, 0.0]},
+        wrench_ages=ages))
     rows = np.rint(s.status["stamp"] * rate).astype(int)
     assert len(rows) > 0.9 * duration * rate and np.all(s.status["held"] == 0.0)
     for field in ("e_x", "e_z", "f_z", "tau_2", "q_c_2", "virtual_lead"):

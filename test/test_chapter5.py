@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 import pytest
+from lockstep_replay import as_read
 from ros_probe import next_domain
 
 from cr_control.analysis.chapter5 import (
@@ -282,7 +283,7 @@ def test_lockstep_over_ros_reproduces_the_offline_loop(scheme, tmp_path):
     cfg = SessionConfig(scheme=scheme, duration=3.0, mode="lockstep", out=tmp_path,
                         domain_id=next_domain(), name="run")
     s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
-    offline = run_scheme(scheme, 3.0)
+    offline = as_read(s.status, 1000.0, 3000, lambda ages: run_scheme(scheme, 3.0, wrench_ages=ages))
     # Every cycle is recorded on an idle machine (test_ros_session checks the recorder); once,
     # at load 5 on 2 cores, the recorder missed 233 of 3000 status messages: compare the
     # rows it has, matched by stamp, and require nearly all of them.

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+from lockstep_replay import as_read
 from robot_data import needs_erd
 from ros_probe import next_domain
 
@@ -278,8 +279,9 @@ def test_lockstep_session_approaches_like_the_offline_loop(tmp_path):
                         overrides=[f"plant.start_clearance={CLEARANCE}",
                                    "plant.ft_noise_std=[0.0, 0.0]"])
     s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
-    offline = run_scheme("adaptive_impedance", duration, robot="panda_ft",
-                         plant_overrides={"start_clearance": CLEARANCE, **NOISE_FREE})
+    offline = as_read(s.status, 1000.0, round(duration * 1000), lambda ages: run_scheme(
+        "adaptive_impedance", duration, robot="panda_ft",
+        plant_overrides={"start_clearance": CLEARANCE, **NOISE_FREE}, wrench_ages=ages))
     rows = np.rint(s.status["stamp"] * 1e3).astype(int)
     assert len(rows) > 0.9 * duration * 1000
     for field in ("approach_phase", "stiffness_scale"):       # contact at the same cycle

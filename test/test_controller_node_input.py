@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import rclpy
 import rclpy.parameter
+from geometry_msgs.msg import WrenchStamped
 from rclpy.context import Context
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
@@ -123,3 +124,30 @@ def test_warm_up_leaves_nothing_to_compile_in_the_first_cycles():
                          timeout=300, check=True).stdout
     lines = out.splitlines()
     assert len(lines) == len(SCHEMES) and all(line.endswith(" []") for line in lines), out
+
+
+def _state(sec: int, nanosec: int) -> bytes:
+    msg = JointState(name=["joint1", "joint2"], position=[3.0358, -2.4401], velocity=[0.0, 0.0])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    return serialize_message(msg)
+
+
+def _wrench(sec: int, nanosec: int, f_x: float) -> bytes:
+    msg = WrenchStamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    msg.wrench.force.x = f_x
+    return serialize_message(msg)
+
+
+@pytest.mark.ros
+def test_the_node_reports_the_age_of_the_wrench_it_read(node):
+    """The state's own wrench first: age 0; the wrench of the state before: 1 ms, and the law
+    read that one; no wrench yet: -1."""
+    assert node.inputs.wrench_age_ms == -1.0
+    node.inputs.wrench_message(_wrench(7, 4_000_000, 1.5))
+    node._on_joint_state(_state(7, 5_000_000))
+    assert node.inputs.wrench_age_ms == pytest.approx(1.0) and node._status_out[-1] == pytest.approx(1.0)
+    assert node.inputs.force[0] == 1.5
+    node.inputs.wrench_message(_wrench(7, 6_000_000, 2.5))
+    node._on_joint_state(_state(7, 6_000_000))
+    assert node._status_out[-1] == 0.0 and node.inputs.force[0] == 2.5

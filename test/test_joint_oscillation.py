@@ -102,9 +102,9 @@ def test_every_robot_scheme_reports_it_and_wiping_stays_far_below_the_threshold(
 
 
 def test_the_command_age_the_controller_sees():
-    """The controller node's status ends with command_age (topics), the controller's
+    """The controller node's status carries command_age (topics), the controller's
     gate.age: 1 period when every state is answered, 31 after a state 30 periods late."""
-    assert topics.NODE_STATUS_FIELDS[-1] == "command_age"
+    assert topics.NODE_STATUS_FIELDS[-2] == "command_age"
     ctl, plant = make_controller("adaptive_impedance"), make_plant("compliant_plane")
     ctl.log_error = ctl.log_info = lambda text: None
     ages = []
@@ -120,9 +120,12 @@ def test_the_command_age_the_controller_sees():
 def test_cr_analyze_reports_both():
     age = np.array([0.0] + [1.0] * 97 + [31.0, 1.0])
     oscillation = np.linspace(0.0, 0.2, 100)
+    wrench_age = np.array([-1.0] + [0.0] * 98 + [2.0])
     out = lateness_and_oscillation({"command_age": age, "joint_oscillation": oscillation,
-                                    "joint_scale": np.linspace(1.0, 0.2, 100)})
+                                    "joint_scale": np.linspace(1.0, 0.2, 100),
+                                    "wrench_age_ms": wrench_age})
     assert out["command_age_p50_cycles"] == 1.0 and out["command_age_max_cycles"] == 31.0
+    assert out["wrench_age_p50_ms"] == 0.0 and out["wrench_age_max_ms"] == 2.0
     assert out["joint_oscillation_max_of_limit"] == pytest.approx(0.2)
     assert out["joint_oscillation_p99_of_limit"] == pytest.approx(np.percentile(oscillation, 99))
     assert out["joint_scale_min"] == pytest.approx(0.2)

@@ -54,6 +54,7 @@ integrate meanwhile winds them up (docs/safety.md, 'Late bursts').
 
 import numpy as np
 import pytest
+from lockstep_replay import as_read
 from ros_probe import next_domain
 
 from cr_control import robots
@@ -281,8 +282,10 @@ def test_lockstep_over_ros_matches_the_offline_loop(robot, scheme, tmp_path):
                         domain_id=next_domain(), name="run", robot=robot,
                         overrides=[f"plant.{k}={v}" for k, v in sensor_noise_free(robot).items()])
     s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
-    offline = run_scheme(scheme, LOCKSTEP_S, robot=robot, plant_overrides=sensor_noise_free(robot))
     rate = robots.robot(robot).rate_hz
+    offline = as_read(s.status, rate, round(LOCKSTEP_S * rate), lambda ages: run_scheme(
+        scheme, LOCKSTEP_S, robot=robot, plant_overrides=sensor_noise_free(robot),
+        wrench_ages=ages))
     rows = np.rint(s.status["stamp"] * rate).astype(int)
     assert len(rows) > 0.9 * LOCKSTEP_S * rate
     fingers = ["panda_finger_joint1", "panda_finger_joint2"] if robot.startswith("panda") else []

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from lockstep_replay import as_read
 from ros_probe import next_domain
 
 from cr_control.analysis.analyze import load_session, metrics
@@ -37,11 +38,15 @@ def test_every_cycle_recorded(lockstep_session):
 
 
 def test_lockstep_reproduces_the_offline_loop(lockstep_session, offline):
-    """Same plant, same controller, same held-command convention: same trajectory."""
+    """Same plant, same controller, same held-command convention, the wrench the node read
+    (lockstep_replay): same trajectory."""
     s = lockstep_session
+    n = int(DURATION * 1000)
+    reference = as_read(s.status, 1000.0, n, lambda ages: offline if ages is None else
+                        run_scheme("adaptive_impedance", DURATION, wrench_ages=ages))
     for field in ("e_x", "e_y", "f_x", "f_y", "tau_1", "tau_2", "c_hat_x", "B_hat_22"):
-        assert np.abs(s.status[field] - offline.column(field)).max() < 1e-6, field
-    assert np.abs(s.joint_commands.effort - offline.command).max() < 1e-6
+        assert np.abs(s.status[field] - reference.column(field)).max() < 1e-6, field
+    assert np.abs(s.joint_commands.effort - reference.command).max() < 1e-6
 
 
 def test_metrics_from_the_recording(lockstep_session):
@@ -60,7 +65,8 @@ def test_chapter3_schemes_in_lockstep_match_offline(scheme, fields, tmp_path):
     cfg = SessionConfig(scheme=scheme, duration=3.0, mode="lockstep", out=tmp_path,
                         domain_id=next_domain(), name="run")
     s = load_session(Session(cfg, progress=lambda _: None).run().mcap)
-    reference = run_scheme(scheme, 3.0)
+    reference = as_read(s.status, 1000.0, 3000,
+                        lambda ages: run_scheme(scheme, 3.0, wrench_ages=ages))
     assert len(s.status["stamp"]) == 3000
     for field in fields:
         assert np.abs(s.status[field] - reference.column(field)).max() < 1e-6, field

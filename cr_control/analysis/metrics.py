@@ -127,11 +127,16 @@ def lateness_and_oscillation(status: dict[str, np.ndarray]) -> dict[str, float]:
     came: 1 when every state is answered; p50, p99, max) and the lightest joint's oscillation
     (``joint_oscillation``: the RMS of its velocity above 5 Hz over 0.1 s, as a fraction of
     its velocity limit; p50, p99, max), with the smallest ``joint_scale`` the
-    contact-stability monitor set (1: it never acted). Absent where the status has none."""
+    contact-stability monitor set (1: it never acted), and the wrench's age (``wrench_age_ms``:
+    how much older the wrench the law read was than the state it answered; p50, p99, max).
+    Absent where the status has none."""
     out: dict[str, float] = {}
     if "command_age" in status:
         age = status["command_age"]
         out.update(_percentiles("command_age", age[age > 0.0], "cycles"))
+    if "wrench_age_ms" in status:
+        age = status["wrench_age_ms"]
+        out.update(_percentiles("wrench_age", age[age >= 0.0], "ms"))
     if "joint_oscillation" in status:
         out.update(_percentiles("joint_oscillation", status["joint_oscillation"], "of_limit"))
     if "joint_scale" in status and len(status["joint_scale"]):

@@ -173,11 +173,15 @@ STATUS_FIELDS = [
 #: used). ``command_age``: how long, in control periods, the command in force had stood when
 #: this state came (its stamp against the last state's: 1 when every state is answered; a
 #: node that falls behind answers only the newest state, so the ones it skipped show here;
-#: cr_control.schemes.command_gate stops commanding when it averages above 3). Not in the
-#: offline loop (no
-#: messages there; its controller's ``gate.age`` is the same number).
+#: cr_control.schemes.command_gate stops commanding when it averages above 3; in the offline
+#: loop its controller's ``gate.age`` is the same number). ``wrench_age_ms``: how much older
+#: (stamp against stamp) the wrench the law read was than the state it answered: 0 when the
+#: state's own wrench had come (the plant publishes it first), a period or more when it had
+#: not (a wrench sample resent after a loss, a sensor slower than the states, a driver that
+#: stamps them apart); -1 before any wrench. Not in the offline loop (no messages there).
 NODE_STATUS_FIELDS = ["in_time_us", "out_time_us", "commands_stopped", "states_foreign",
-                      "source_handovers", "inputs_oversized", "sensor_faults", "command_age"]
+                      "source_handovers", "inputs_oversized", "sensor_faults", "command_age",
+                      "wrench_age_ms"]
 
 #: The plant's command interface, ``std_msgs/String`` "effort" or "position", latched
 #: (RELIABLE, TRANSIENT_LOCAL, depth 1; published once at start): a controller node whose

@@ -401,7 +401,7 @@ class ControllerNode(LifecycleNode):
             status[n:] = ((compute_start - entry) * 1e6, self._out_time_us,
                           0.0 if self.controller.commanding else 1.0, inputs.states_foreign,
                           inputs.source_handovers, inputs.inputs_oversized, inputs.sensor_faults,
-                          self.controller.gate.age)
+                          self.controller.gate.age, inputs.wrench_age_ms)
             self.reference_pub.publish(self._reference.message())
             self.status_pub.publish(self._status.message())
         self._out_time_us = (time.perf_counter() - out_start) * 1e6

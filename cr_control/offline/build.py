@@ -6,6 +6,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from cr_control import robots
 from cr_control.offline.loop import OfflineRun, run
 from cr_control.schemes.controller import Controller
@@ -55,7 +57,7 @@ def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any
                plant_overrides: dict[str, Any] | None = None, period: float | None = None,
                robot: str | None = None,
                hook: Callable[[int, float, Controller, Plant], None] | None = None,
-               supervise: bool = True) -> OfflineRun:
+               supervise: bool = True, wrench_ages: np.ndarray | None = None) -> OfflineRun:
     """Offline run of ``scheme`` on its thesis plant with thesis defaults and overrides, or
     on ``robot``'s wiping task (see :func:`build_scheme`); ``period`` (s) defaults to 1 ms,
     on a robot to its driver's rate (the plant's ``rate_hz``: 2 ms for a UR). The plant's
@@ -66,13 +68,13 @@ def run_scheme(scheme: str, duration: float, controller_overrides: dict[str, Any
     driver's transport delay (:func:`node_delay`): on a robot its profile's
     (``command_delay_cycles``: 1 cycle on the Panda and the UR5), none on a thesis plant;
     ``plant_overrides`` may set it and the late bursts (``late_burst_*``) as the plant
-    node's parameters. ``supervise`` False: without the plant's reflexes and limits
-    (:func:`run`)."""
+    node's parameters. ``supervise`` False: without the plant's reflexes and limits;
+    ``wrench_ages``: the wrench a controller node read, replayed (:func:`run`)."""
     controller, plant = build_scheme(scheme, controller_overrides, plant_overrides, robot)
     period = robot_period(robot) if period is None else period
     limiter = None if robot is None else node_limiter(plant, scheme, robot, plant_overrides, period)
     delay = node_delay(scheme, robot, plant_overrides)
-    return run(controller, plant, duration, period, hook, supervise, limiter, delay)
+    return run(controller, plant, duration, period, hook, supervise, limiter, delay, wrench_ages)
 
 
 def node_settings(scheme: str, robot: str | None,

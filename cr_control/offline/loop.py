@@ -67,11 +67,15 @@ class OfflineRun:
 def run(controller: Controller, plant: Plant, duration: float, period: float = 1e-3,
         hook: Callable[[int, float, Controller, Plant], None] | None = None,
         supervise: bool = True, limiter: CommandLimiter | None = None,
-        delay: TransportDelay | None = None) -> OfflineRun:
+        delay: TransportDelay | None = None,
+        wrench_ages: np.ndarray | None = None) -> OfflineRun:
     """Step ``plant`` and ``controller`` for ``duration`` s at ``period`` (module docstring);
     ``supervise`` False: without the plant's supervision (no reflex, no brakes, no limits;
     the delay still acts: it is the driver's); ``limiter``: the plant node's command limits
-    (None: none); ``delay``: the driver's transport delay (None: none)."""
+    (None: none); ``delay``: the driver's transport delay (None: none); ``wrench_ages``: per
+    step, how many periods older than the state the wrench the controller reads is (a
+    controller node's ``wrench_age_ms`` replayed: what it read over ROS; -1: none yet, zeros;
+    None: every state's own, as a node reads it when the plant's wrench comes first)."""
     steps = int(round(duration / period))
     n = len(plant.joint_names)
     n_command = len(plant.command_joints)
@@ -106,6 +110,7 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
     true_force = getattr(plant, "contact_force", None)
     supervisor = PlantSupervisor(plant, period, limiter, delay=delay) if supervise else None
     delayed = delay if delay is not None and not delay.passes_through else None
+    wrenches: list[np.ndarray] = []         # each step's, for wrench_ages
     for k in range(steps):
         m = plant.measurement()
         if hook is not None:
@@ -123,6 +128,10 @@ def run(controller: Controller, plant: Plant, duration: float, period: float = 1
         q, v = (m.position, m.velocity) if read is None else (m.position[read], m.velocity[read])
         force = (np.concatenate([m.force, m.torque]) if getattr(controller, "reads_wrench", False)
                  else m.force)
+        if wrench_ages is not None:
+            wrenches.append(force)
+            age = int(wrench_ages[k])
+            force = wrenches[max(0, k - age)] if age >= 0 else np.zeros_like(force)
         out = controller.step(sec + nanosec * 1e-9, q, v, force)
         command = out.command if to_plant is None else out.command[to_plant]
         if supervisor is None:

@@ -120,6 +120,7 @@ class ControllerInputs:
         self.wrench = np.zeros(6)
         self.force = self.wrench[:3]
         self.wrench_seen = False
+        self.wrench_time = 0.0                 # its stamp (s)
         self._sensor_fault = False
         self.sensor_frame = values.get("sensor_frame", "")
         # the plant's sensors the law reads
@@ -301,6 +302,7 @@ class ControllerInputs:
         if fx * fx + fy * fy + fz * fz <= limit * limit:     # False for NaN, inf, overflow
             self.force[:] = wrench.force
             self.wrench[3:] = wrench.torque
+            self.wrench_time = wrench.sec + wrench.nanosec * 1e-9
             self.wrench_seen = True
             self._sensor_fault = False
             return
@@ -311,6 +313,13 @@ class ControllerInputs:
                 f"wrench force {list(wrench.force)} N: |f| above max_sensor_force {limit:g} N "
                 f"or not finite: a sensor fault; the last sane force {self.force.tolist()} N "
                 "stays in use (counted in sensor_faults)"))
+
+    @property
+    def wrench_age_ms(self) -> float:
+        """How much older (ms, stamp against stamp) the wrench in use is than the state
+        answered: 0 when the state's own wrench came first, as the plant publishes it; -1
+        before any wrench."""
+        return (self.t - self.wrench_time) * 1e3 if self.wrench_seen else -1.0
 
     def sensors_message(self, data: bytes) -> None:
         """The plant's extra measurements the law reads, found by label (published just
