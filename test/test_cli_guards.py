@@ -219,7 +219,7 @@ def test_node_help_prints_its_usage_and_starts_nothing(ros_env, node):
     usage = proc.stdout.splitlines()[0]
     assert usage.startswith(f"usage: {node} ") and "--ros-args" in usage, usage
     if node != "controller_node":
-        assert "Parameters: config/" in proc.stdout
+        assert "\nParameters: " in proc.stdout and "config/" in proc.stdout
     assert help_asked(["x", "--ros-args", "-p", "a:=1", "--", "-h"])
     assert not help_asked(["x", "--ros-args", "--help"])
 
