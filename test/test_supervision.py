@@ -206,8 +206,8 @@ def controller_inputs(expected=("/plant",), lockstep=False, graph=None, advertis
         if not data.startswith(b"w"):
             return None
         frame, *force = data[1:].decode().split(",")
-        return SimpleNamespace(force=tuple(map(float, force)), torque=(0.0, 0.0, 0.0),
-                               frame_id=frame)
+        return SimpleNamespace(sec=7, nanosec=0, force=tuple(map(float, force)),
+                               torque=(0.0, 0.0, 0.0), frame_id=frame)
 
     readers = Readers(fields, wrench, lambda data: None, lambda data: None, 64, 4, 64, 64)
     inputs = ControllerInputs(readers, ("joint1", "joint2"),

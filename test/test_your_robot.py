@@ -21,7 +21,9 @@ controller is the ``adaptive_impedance`` executable with the Panda's params file
   the same floating-point operations: states, forces and torques agree bit for bit (0
   measured; asserted to 1e-12). Anything a lost or reordered message changes is far above
   that: one cycle fed the previous wrench (offline, at 20, 500 or 1500 ms) moves the joints
-  by 5e-9 to 8e-7 rad and the force by 7e-6 to 1e-3 N by 2 s;
+  by 5e-9 to 8e-7 rad and the force by 7e-6 to 1e-3 N by 2 s; so where the controller read
+  an older wrench than its state's (its status's ``wrench_age_ms``), the offline loop reads
+  the same one (lockstep_replay.py);
 - the TRUE contact force (the plant's, not the sensor's reading) is positive from 50 ms after
   the law starts (after the 30 ms start-up zeroing) and within 0.5 N of the 10 N desired
   once ramped in (t >= 1.5 s);
@@ -38,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from geometry_msgs.msg import WrenchStamped
+from lockstep_replay import as_read
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_probe import RosProbe, start_node, stop_node
 from sensor_msgs.msg import JointState
@@ -91,6 +94,8 @@ class StandInRobot:
         self.command_sub = node.create_subscription(Float64MultiArray, FORWARD_TOPIC,
                                                     self._on_array, QOS)
         node.create_subscription(JointState, topics.JOINT_COMMANDS, self._on_joint_commands, QOS)
+        node.create_subscription(Float64MultiArray, "/adaptive_impedance/status", self._on_status, QOS)
+        self.status: dict[str, list[float]] = {"stamp": [], "wrench_age_ms": []}
         self.rows: list[tuple[int, object, list[float]]] = []   # (stamp, measurement, array)
         self.joint_commands: dict[int, tuple[list[str], list[float]]] = {}
         self.pending = None            # (stamp, measurement) of the state awaiting its command
@@ -148,6 +153,12 @@ class StandInRobot:
         if len(self.rows) < self.budget:
             self.publish_state()
 
+    def _on_status(self, msg: Float64MultiArray) -> None:
+        """The controller's status: the wrench age it read at each state (lockstep_replay)."""
+        fields = topics.fields_of(msg.layout.dim[0].label)
+        for name in self.status:
+            self.status[name].append(msg.data[fields.index(name)])
+
     def _on_joint_commands(self, msg: JointState) -> None:
         key = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         self.joint_commands.setdefault(key, (list(msg.name), list(msg.effort)))
@@ -204,8 +215,9 @@ def test_a_controller_drives_a_ros2_control_robot(ros_env, probe):
         robot.publish_state()
         assert run_until(probe, robot, lambda: len(robot.rows) >= CYCLES + 2, timeout=10)
         keys = [key for key, _, _ in robot.rows]
-        assert run_until(probe, robot, lambda: all(k in robot.joint_commands for k in keys),
-                         timeout=10), "a /joint_commands message is missing"
+        assert run_until(probe, robot, lambda: all(k in robot.joint_commands for k in keys)
+                         and len(robot.status["stamp"]) >= CYCLES, timeout=10), \
+            "a /joint_commands or status message is missing"
         run_until(probe, robot, lambda: False, timeout=0.3)     # nothing more arrives
     finally:
         code, out = stop_node(controller)
@@ -226,8 +238,12 @@ def test_a_controller_drives_a_ros2_control_robot(ros_env, probe):
     assert worst <= 1e-12
     assert np.abs(arrays).max() > 1.0          # real torques (gravity alone is tens of N m)
 
-    # the closed loop is the offline loop, stamp for stamp
-    reference = run(*build_scheme("adaptive_impedance", robot="panda_ft"), CYCLES * PERIOD, PERIOD)
+    # the closed loop is the offline loop, stamp for stamp (reading the wrench the controller
+    # read: lockstep_replay)
+    status = {name: np.array(values) for name, values in robot.status.items()}
+    reference = as_read(status, 1 / PERIOD, CYCLES, lambda ages: run(
+        *build_scheme("adaptive_impedance", robot="panda_ft"), CYCLES * PERIOD, PERIOD,
+        wrench_ages=ages))
     loop = robot.rows[:CYCLES]
     t = np.array([m.time for _, m, _ in loop])
     q = np.array([m.position for _, m, _ in loop])
